@@ -1,0 +1,55 @@
+"""Shared fixtures: a random body table whose shape dependence is known exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.body.skeleton import NUM_JOINTS, PARENTS
+from mocapgraph.body.table import BodyTable
+
+
+class LinearShapeTable:
+    """A random body whose offsets and markers are affine in a shape vector of size S."""
+
+    def __init__(self, seed: int = 0, num_keypoints: int = 9, shape_dim: int = 4):
+        rng = np.random.default_rng(seed)
+        self.o0 = rng.normal(scale=0.2, size=(NUM_JOINTS, 3))
+        self.o0[0] = 0.0
+        self.do = rng.normal(scale=0.05, size=(NUM_JOINTS, 3, shape_dim))
+        self.do[0] = 0.0
+        weights = rng.random((num_keypoints, NUM_JOINTS)) * (rng.random((num_keypoints, NUM_JOINTS)) < 0.2)
+        weights[np.arange(num_keypoints), rng.integers(0, NUM_JOINTS, num_keypoints)] += 0.5
+        self.a = weights / weights.sum(axis=1, keepdims=True)
+        self.l0 = rng.normal(scale=0.05, size=(num_keypoints, NUM_JOINTS, 3)) * (self.a[..., None] > 0)
+        self.dl = rng.normal(scale=0.01, size=(num_keypoints, NUM_JOINTS, 3, shape_dim)) * (
+            self.a[..., None, None] > 0
+        )
+        self.shape_dim = shape_dim
+        self.names = tuple(f"k{i}" for i in range(num_keypoints))
+
+    def __call__(self, beta: np.ndarray) -> BodyTable:
+        return BodyTable(
+            parents=PARENTS.copy(),
+            offsets=self.o0 + self.do @ beta,
+            d_offsets=self.do,
+            weights=self.a,
+            markers=self.l0 + self.dl @ beta,
+            d_markers=self.dl,
+            keypoint_names=self.names,
+            mapped=np.ones(len(self.names), dtype=bool),
+        )
+
+
+def random_root(rng: np.random.Generator, frames: int) -> np.ndarray:
+    """``(frames, 4, 4)`` random world_T_root poses."""
+    root = np.tile(np.eye(4), (frames, 1, 1))
+    root[:, :3, :3] = rotvec_to_matrix(rng.normal(size=(frames, 3)))
+    root[:, :3, 3] = rng.normal(size=(frames, 3))
+    return root
+
+
+@pytest.fixture
+def linear_table():
+    return LinearShapeTable(seed=3)
