@@ -18,10 +18,10 @@ import time
 
 import numpy as np
 
-from mocapgraph.body.rotations import axis_rotation, rotvec_to_matrix
+from mocapgraph.body.rotations import axis_rotation, minimal_rotation
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
 
-EXPORT_FORMAT = 1
+EXPORT_FORMAT = 2
 
 # SMPL joint → Anny bone; the feet drive all five first toe phalanges together.
 TOES = tuple(f"toe{i}-1" for i in range(1, 6))
@@ -44,14 +44,6 @@ SMPL_TO_ANNY: dict[str, tuple[str, ...]] = {
 
 # Anny axes from SMPL axes: (x, y, z)_anny = (x, -z, y)_smpl.
 SMPL_TO_ANNY_AXES = axis_rotation("x", np.pi / 2)
-
-
-def minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation ``(3, 3)`` turning direction ``a`` onto direction ``b`` (not antiparallel)."""
-    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
-    axis = np.cross(a, b)
-    angle = np.arctan2(np.linalg.norm(axis), a @ b)
-    return rotvec_to_matrix(axis / max(np.linalg.norm(axis), 1e-300) * angle)
 
 
 def _np(t) -> np.ndarray:
@@ -138,16 +130,16 @@ def export_anny_table(model=None) -> dict[str, np.ndarray]:
     marker_template = rk @ template
     marker_blend = np.einsum("nv,cvx->cnx", rk, blend)
 
-    # Arms: Anny's zero pose is an A-pose with bent elbows; for the default phenotype, raise each
-    # upper arm about the forward axis to horizontal and straighten the forearm along it, so
-    # that zero rotations are a T-pose. Q_c are these T-pose world-aligned frames (Anny axes).
+    # Arms: Anny's zero pose is an A-pose with bent elbows; for the default phenotype, turn each
+    # upper arm onto the ±X axis and straighten the forearm along it, so that zero rotations
+    # are a T-pose. Q_c are these T-pose world-aligned frames (Anny axes).
     out = model(phenotype_kwargs=None)
     heads = _np(out["bone_poses"])[0, :, :3, 3]
     rebase = np.tile(np.eye(3), (NUM_JOINTS, 1, 1))
     for side, prefix in (("L", "left_"), ("R", "right_")):
         shoulder, elbow, wrist = (labels.index(f"{b}.{side}") for b in ("upperarm01", "lowerarm01", "wrist"))
         upper = heads[elbow] - heads[shoulder]
-        raise_arm = minimal_rotation(np.array([upper[0], 0.0, upper[2]]), np.array([upper[0], 0.0, 0.0]))
+        raise_arm = minimal_rotation(upper, np.array([np.sign(upper[0]), 0.0, 0.0]))
         straighten = minimal_rotation(heads[wrist] - heads[elbow], raise_arm @ upper)
         rebase[JOINT_NAMES.index(prefix + "shoulder")] = raise_arm
         rebase[JOINT_NAMES.index(prefix + "elbow")] = straighten

@@ -68,3 +68,11 @@ def axis_rotation(axis: str, angle: float) -> np.ndarray:
     """Rotation matrix ``(3, 3)`` of ``angle`` radians about the named coordinate axis."""
     unit = {"x": [1.0, 0.0, 0.0], "y": [0.0, 1.0, 0.0], "z": [0.0, 0.0, 1.0]}[axis]
     return rotvec_to_matrix(angle * np.asarray(unit))
+
+
+def minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation ``(3, 3)`` turning direction ``a`` onto direction ``b`` (not antiparallel)."""
+    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    angle = np.arctan2(np.linalg.norm(axis), a @ b)
+    return rotvec_to_matrix(axis / max(np.linalg.norm(axis), 1e-300) * angle)

@@ -71,21 +71,22 @@ class BodyTable:
     def num_keypoints(self) -> int:
         return len(self.keypoint_names)
 
-    def select(self, rows: np.ndarray, mix: np.ndarray, names: tuple[str, ...]) -> BodyTable:
-        """Keypoint rows for another point set: row ``i`` is ``Σ_j mix[i, j] · row[rows[j]]``.
+    def combine(self, mix: np.ndarray, names: tuple[str, ...]) -> BodyTable:
+        """Another point set: point ``i`` is ``Σ_k mix[i, k] · keypoint k`` of this table.
 
-        Because keypoints are linear in ``(a, ℓ)``, any fixed combination of body keypoints
-        (e.g. a detector's mid-hip as the mean of both hips) is again a table row.
-        ``mix`` is ``(K', len(rows))``; a row of zeros marks an unmapped point.
+        Keypoints are linear in ``(a, ℓ)``, so any fixed blend of body keypoints (a detector's
+        mid-hip as the mean of both hips) is again a table row. ``mix`` is ``(K', K)``; a row of
+        zeros marks a point this body cannot provide (``mapped`` False).
         """
         mix = np.asarray(mix, dtype=float)
+        used = mix != 0
         return BodyTable(
             parents=self.parents,
             offsets=self.offsets,
             d_offsets=self.d_offsets,
-            weights=np.einsum("ij,jc->ic", mix, self.weights[rows]),
-            markers=np.einsum("ij,jcx->icx", mix, self.markers[rows]),
-            d_markers=np.einsum("ij,jcxs->icxs", mix, self.d_markers[rows]),
+            weights=mix @ self.weights,
+            markers=np.einsum("ik,kcx->icx", mix, self.markers),
+            d_markers=np.einsum("ik,kcxs->icxs", mix, self.d_markers),
             keypoint_names=tuple(names),
-            mapped=np.any(mix != 0, axis=1) & np.all(self.mapped[rows][None] | (mix == 0), axis=1),
+            mapped=used.any(axis=1) & ~(used & ~self.mapped[None]).any(axis=1),
         )

@@ -1,0 +1,1 @@
+"""Captures, motion sources, synthetic scenes, detectors, metrics and reports."""

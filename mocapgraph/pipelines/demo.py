@@ -1,0 +1,118 @@
+"""``make demo`` / ``mocapgraph demo``: pose the default body and draw it from two viewpoints.
+
+Poses come from CMU takes in the motion directory when it is present, otherwise from a small
+built-in set. Later pipelines grow this into a full capture → solve → report run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mocapgraph.body import load_body_model
+from mocapgraph.body.model import BodyModel
+from mocapgraph.body.skeleton import JOINT_NAMES, PARENTS
+
+# (take file, frame) pairs chosen for variety: walking, running, waving, dancing.
+CMU_POSES = (("cmu_02_01.npz", 40), ("cmu_09_01.npz", 20), ("cmu_13_26.npz", 150), ("cmu_05_09.npz", 120))
+
+
+def builtin_poses() -> tuple[list[str], np.ndarray, np.ndarray]:
+    """A T-pose, a stride, a wave and a squat: names, ``root (4, 4, 4)``, ``pose (4, 21, 3)``."""
+    j = JOINT_NAMES.index
+    poses = np.zeros((4, 21, 3))
+    # Local rotations are about the body's axes: +X left, +Y up, +Z forward.
+    poses[1, j("left_hip") - 1] = [-0.5, 0, 0]
+    poses[1, j("right_hip") - 1] = [0.4, 0, 0]
+    poses[1, j("right_knee") - 1] = [0.6, 0, 0]
+    poses[1, j("left_shoulder") - 1] = [0, 0, -1.2]
+    poses[1, j("right_shoulder") - 1] = [0, 0, 1.2]
+    poses[2, j("right_shoulder") - 1] = [0, 0, -0.9]
+    poses[2, j("right_elbow") - 1] = [0, 0, -1.2]
+    poses[2, j("left_shoulder") - 1] = [0, 0, -1.3]
+    for side in ("left", "right"):
+        poses[3, j(f"{side}_hip") - 1] = [-1.3, 0, 0]
+        poses[3, j(f"{side}_knee") - 1] = [2.0, 0, 0]
+        poses[3, j(f"{side}_ankle") - 1] = [-0.6, 0, 0]
+        poses[3, j(f"{side}_shoulder") - 1] = [-1.2, 0, 0]
+    root = np.tile(np.eye(4), (4, 1, 1))
+    root[:, :3, :3] = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])  # body Y-up into world Z-up
+    root[:, 2, 3] = [0.95, 0.9, 0.95, 0.55]
+    return ["T-pose", "stride", "wave", "squat"], root, poses
+
+
+def cmu_poses(body: BodyModel, motion_dir: Path) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+    """The frames of :data:`CMU_POSES` that exist under ``motion_dir``, or None if none do."""
+    from mocapgraph.data_tools.cmu_motion import load_cmu_take, retarget
+
+    names, roots, poses = [], [], []
+    for file, frame in CMU_POSES:
+        path = motion_dir / file
+        if not path.exists():
+            continue
+        take = load_cmu_take(path)
+        root, pose = retarget(take, body)
+        frame = min(frame, len(pose) - 1)
+        root[frame, :3, 3] -= [root[frame, 0, 3], root[frame, 1, 3], 0.0]  # centre horizontally
+        names.append(f"{path.stem} frame {frame}")
+        roots.append(root[frame])
+        poses.append(pose[frame])
+    if not names:
+        return None
+    return names, np.stack(roots), np.stack(poses)
+
+
+def draw(body: BodyModel, names: list[str], root: np.ndarray, pose: np.ndarray, out: Path) -> Path:
+    """PNG of each pose's skeleton and keypoints, front (looking along +Y) and side (along −X)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    res = body.forward(body.default_shape, root, pose)
+    n = len(names)
+    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 6.4), squeeze=False)
+    views = (("front", 0, 2), ("side", 1, 2))
+    for col, name in enumerate(names):
+        for row, (view, u, v) in enumerate(views):
+            ax = axes[row, col]
+            joints, kps = res.joints[col], res.keypoints[col]
+            for c, p in enumerate(PARENTS):
+                if p >= 0:
+                    ax.plot(joints[[p, c], u], joints[[p, c], v], "-", color="0.3", lw=2)
+            ax.plot(joints[:, u], joints[:, v], "o", color="tab:blue", ms=4, label="joints (22)")
+            ax.plot(kps[:, u], kps[:, v], "x", color="tab:red", ms=5, label="keypoints (23)")
+            ax.set_aspect("equal")
+            ax.set_xlim(joints[:, u].mean() - 1.0, joints[:, u].mean() + 1.0)
+            ax.set_ylim(-0.05, 2.0)
+            ax.set_title(f"{name}\n{view}", fontsize=9)
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper left", fontsize=7)
+    fig.suptitle(f"mocapgraph body model: {body.name}", fontsize=11)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    tmp.replace(out)
+    return out
+
+
+def run_demo(out_dir: Path, motion_dir: Path | None = None) -> Path:
+    """Pose the default body (CMU poses if available) and write ``body_poses.png`` into ``out_dir``."""
+    from mocapgraph.data_tools.cmu_motion import motion_dir as default_motion_dir
+
+    body = load_body_model()
+    chosen = cmu_poses(body, motion_dir or default_motion_dir())
+    source = "CMU motion"
+    if chosen is None:
+        chosen, source = builtin_poses(), "built-in poses"
+    names, root, pose = chosen
+    # Stand the body on the floor: lowest keypoint at z = 0.
+    lowest = body.forward(body.default_shape, root, pose).keypoints[..., 2].min(axis=1)
+    root = root.copy()
+    root[:, 2, 3] -= lowest
+    path = draw(body, names, root, pose, out_dir / "body_poses.png")
+    print(f"posed the {body.name} body in {len(names)} {source}: {', '.join(names)}")
+    return path
