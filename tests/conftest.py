@@ -13,7 +13,7 @@ from mocapgraph.body.table import BodyTable
 class LinearShapeTable:
     """A random body whose offsets and markers are affine in a shape vector of size S."""
 
-    def __init__(self, seed: int = 0, num_keypoints: int = 9, shape_dim: int = 4):
+    def __init__(self, seed: int = 0, num_keypoints: int = 9, shape_dim: int = 4, names=None):
         rng = np.random.default_rng(seed)
         self.o0 = rng.normal(scale=0.2, size=(NUM_JOINTS, 3))
         self.o0[0] = 0.0
@@ -27,7 +27,7 @@ class LinearShapeTable:
             self.a[..., None, None] > 0
         )
         self.shape_dim = shape_dim
-        self.names = tuple(f"k{i}" for i in range(num_keypoints))
+        self.names = tuple(names) if names is not None else tuple(f"k{i}" for i in range(num_keypoints))
 
     def __call__(self, beta: np.ndarray) -> BodyTable:
         return BodyTable(

@@ -78,5 +78,6 @@ def bench_body(body: BodyModel, frames: int = 256, min_seconds: float = 1.0, see
         "numpy_frames_per_s": round(reference, 1),
         "ratio": round(native / reference, 2),
         "shape_table_ms": round(table_ms, 2),
-        "max_jacobian_rel_err": jacobian_error(body, shape),
+        # Anny's phenotype map has kinks at its anchors (0.5 is one); step off them for the check.
+        "max_jacobian_rel_err": jacobian_error(body, shape + 0.0123),
     }

@@ -83,8 +83,13 @@ def load_cmu_take(path: str | Path) -> CMUTake:
     path = Path(path)
     if not path.exists():
         raise MocapgraphError(f"{path}: motion file not found")
+    required = ("joint_names", "parents", "rotations", "offsets", "root_translation", "fps",
+                "end_site_names", "end_site_parents", "end_site_offsets")  # fmt: skip
     try:
         with np.load(path, allow_pickle=False) as d:
+            missing = [k for k in required if k not in d.files]
+            if missing:
+                raise MocapgraphError(f"{path}: missing key {missing[0]!r}")
             names = [str(n) for n in d["joint_names"]]
             parents = d["parents"].astype(int)
             quats = d["rotations"].astype(float)
@@ -95,8 +100,6 @@ def load_cmu_take(path: str | Path) -> CMUTake:
                 str(n): (int(p), o.astype(float))
                 for n, p, o in zip(d["end_site_names"], d["end_site_parents"], d["end_site_offsets"])
             }
-    except KeyError as exc:
-        raise MocapgraphError(f"{path}: missing key {exc}") from None
     except (OSError, ValueError) as exc:
         raise MocapgraphError(f"{path}: not a readable motion .npz ({exc})") from None
     if quats.ndim != 3 or quats.shape[1:] != (len(names), 4) or not np.all(np.isfinite(quats)):
