@@ -37,12 +37,10 @@ def table_arrays(table: BodyTable) -> tuple[np.ndarray, ...]:
 
 def check_pose(root, pose) -> tuple[np.ndarray, np.ndarray]:
     """Validate ``root (T, 4, 4)`` and ``pose (T, 21, 3)`` (a single frame may drop the T axis)."""
-    root = np.asarray(root, dtype=float)
-    pose = np.asarray(pose, dtype=float)
-    if root.ndim == 2:
-        root = root[None]
-    if pose.ndim == 2:
-        pose = pose[None]
+    if np.ndim(root) == 2:
+        root = np.asarray(root)[None]
+    if np.ndim(pose) == 2:
+        pose = np.asarray(pose)[None]
     root = as_checked_array(root, "root pose world_T_root", (None, 4, 4))
     pose = as_checked_array(pose, "joint rotations (axis-angle)", (root.shape[0], NUM_JOINTS - 1, 3))
     rot = root[:, :3, :3]

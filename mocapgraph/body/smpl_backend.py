@@ -164,7 +164,9 @@ def _sparse_class(fmt: str) -> type:
 
 
 _SPARSE_CLASSES = {
-    f"{fmt}_{kind}": _sparse_class(fmt) for fmt in ("csc", "csr", "coo", "bsr") for kind in ("matrix", "array")
+    f"{fmt}_{kind}": _sparse_class(fmt)
+    for fmt in ("csc", "csr", "coo", "bsr")
+    for kind in ("matrix", "array")
 }
 
 
@@ -215,39 +217,46 @@ class _ModelUnpickler(pickle.Unpickler):
             from collections import OrderedDict
 
             return OrderedDict
-        raise _RefusedGlobal(
-            f"refusing to load {module}.{name} (only numpy, scipy.sparse and chumpy data are allowed)"
-        )
+        raise _RefusedGlobal(f"{module}.{name}")
 
 
-def _read_pickle(path: Path) -> dict:
-    data = path.read_bytes()
+def _read_pickle(path: Path, where: str) -> dict:
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise MocapgraphError(f"{where}: cannot read it ({exc.strerror or exc})") from None
     try:
         content = _ModelUnpickler(io.BytesIO(data), encoding="latin1").load()
     except _RefusedGlobal as exc:
-        raise MocapgraphError(f"model file {path}: not loaded: the pickle {exc}") from None
-    except MocapgraphError:
-        raise
+        raise MocapgraphError(
+            f"{where}: refused: the pickle asks for {exc}, and only numpy arrays, scipy.sparse "
+            "matrices and chumpy data are loaded (nothing in the file was run)"
+        ) from None
     except Exception as exc:  # corrupt pickles raise almost anything
         raise MocapgraphError(
-            f"model file {path}: cannot read it as a pickled model ({type(exc).__name__}: {exc})"
+            f"{where}: cannot read it as a pickled model ({type(exc).__name__}: {exc})"
         ) from None
     if not isinstance(content, dict):
         raise MocapgraphError(
-            f"model file {path}: expected a pickled dict of model arrays, got {type(content).__name__}"
+            f"{where}: expected a pickled dict of model arrays, got {type(content).__name__}"
         )
     return content
 
 
-def _read_npz(path: Path) -> dict:
+def _read_npz(path: Path, where: str) -> dict:
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(4)
+    except OSError as exc:
+        raise MocapgraphError(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
+        raise MocapgraphError(f"{where}: cannot read it as a numpy .npz archive (not a zip file)")
     try:
         archive = np.load(path, allow_pickle=False)
     except Exception as exc:
         raise MocapgraphError(
-            f"model file {path}: cannot read it as a numpy .npz archive ({type(exc).__name__}: {exc})"
+            f"{where}: cannot read it as a numpy .npz archive ({type(exc).__name__}: {exc})"
         ) from None
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise MocapgraphError(f"model file {path}: is a single .npy array, not an .npz archive of model arrays")
     content = {}
     with archive:
         for field in REQUIRED_FIELDS:
@@ -258,20 +267,20 @@ def _read_npz(path: Path) -> dict:
             except ValueError as exc:
                 if "allow_pickle" in str(exc):
                     raise MocapgraphError(
-                        f"model file {path}: field {field!r} is stored as a pickled Python object, "
+                        f"{where}: field {field!r} is stored as a pickled Python object, "
                         "which mocapgraph does not load from .npz files; re-save it as a plain array"
                     ) from None
-                raise MocapgraphError(f"model file {path}: field {field!r} is unreadable ({exc})") from None
+                raise MocapgraphError(f"{where}: field {field!r} is unreadable ({exc})") from None
             except Exception as exc:
                 raise MocapgraphError(
-                    f"model file {path}: field {field!r} is unreadable ({type(exc).__name__}: {exc})"
+                    f"{where}: field {field!r} is unreadable ({type(exc).__name__}: {exc})"
                 ) from None
     return content
 
 
-def _plain_array(value, path: Path, field: str) -> np.ndarray:
+def _plain_array(value, where: str, field: str) -> np.ndarray:
     """A loaded value as a plain numeric ndarray (chumpy and sparse stand-ins unwrapped)."""
-    where = f"model file {path}: field {field!r}"
+    where = f"{where}: field {field!r}"
     try:
         if isinstance(value, _ChumpyStandIn):
             arr = value.array()
@@ -321,61 +330,66 @@ class SMPLBody(BodyModel):
         if kind not in KINDS:
             raise MocapgraphError(f"unknown SMPL model kind {kind!r}; choose one of {', '.join(KINDS)}")
         self.name = kind
-        path = Path(model_path).expanduser()
+        try:
+            path = Path(model_path).expanduser()
+        except TypeError:
+            raise MocapgraphError(f"{kind} model path must be a file path, got {model_path!r}") from None
         self.source = str(path)
         label = "SMPL-X" if kind == "smplx" else "SMPL"
+        self._where = where = f"{label} model file {path}"
+        if isinstance(num_betas, bool) or not isinstance(num_betas, (int, np.integer)) or num_betas < 1:
+            raise MocapgraphError(f"{where}: num_betas must be a positive integer, got {num_betas!r}")
+        self.num_betas = int(num_betas)
         if not path.exists():
             raise MocapgraphError(
-                f"{label} model file {path} does not exist (mocapgraph never downloads SMPL files: "
+                f"{where} does not exist (mocapgraph never downloads SMPL files: "
                 "point --model-path at your own licensed copy)"
             )
         if path.is_dir():
             raise MocapgraphError(
-                f"{label} model file {path} is a directory; pass the model file itself "
+                f"{where} is a directory; pass the model file itself "
                 f"(e.g. {path / ('SMPLX_NEUTRAL.npz' if kind == 'smplx' else 'SMPL_NEUTRAL.npz')})"
             )
         suffix = path.suffix.lower()
         if suffix == ".npz":
-            content = _read_npz(path)
+            content = _read_npz(path, where)
         elif suffix == ".pkl":
-            content = _read_pickle(path)
+            content = _read_pickle(path, where)
         else:
-            raise MocapgraphError(
-                f"{label} model file {path}: unknown extension {path.suffix!r} (expected .npz or .pkl)"
-            )
-        if isinstance(num_betas, bool) or not isinstance(num_betas, (int, np.integer)) or num_betas < 1:
-            raise MocapgraphError(f"{label} model file {path}: num_betas must be a positive integer, got {num_betas!r}")
-        self.num_betas = int(num_betas)
-        self._build(path, content)
+            raise MocapgraphError(f"{where}: unknown extension {path.suffix!r} (expected .npz or .pkl)")
+        self._build(content)
 
     # ---- loading -----------------------------------------------------------------------------
 
-    def _field(self, path: Path, content: dict, field: str) -> np.ndarray:
+    def _field(self, content: dict, field: str) -> np.ndarray:
         if field not in content:
-            raise MocapgraphError(f"model file {path}: missing field {field!r} (required: {', '.join(REQUIRED_FIELDS)})")
-        return _plain_array(content[field], path, field)
+            raise MocapgraphError(
+                f"{self._where}: missing field {field!r} (required: {', '.join(REQUIRED_FIELDS)})"
+            )
+        return _plain_array(content[field], self._where, field)
 
-    def _build(self, path: Path, content: dict) -> None:
+    def _build(self, content: dict) -> None:
         kind, S = self.name, self.num_betas
 
         def name(field: str) -> str:
-            return f"model file {path}: field {field!r}"
+            return f"{self._where}: field {field!r}"
 
-        v_template = as_checked_array(self._field(path, content, "v_template"), name("v_template"), (None, 3))
+        v_template = as_checked_array(self._field(content, "v_template"), name("v_template"), (None, 3))
         V = v_template.shape[0]
         layout = next((k for k, n in NUM_VERTICES.items() if n == V), None)
         if layout is None:
             raise MocapgraphError(
-                f"model file {path}: field 'v_template' has {V} vertices, which matches neither the "
-                f"SMPL/SMPL-H mesh ({NUM_VERTICES['smpl']}) nor the SMPL-X mesh ({NUM_VERTICES['smplx']})"
+                f"{self._where}: field 'v_template' has {V} vertices, which matches neither the "
+                f"SMPL/SMPL-H mesh ({NUM_VERTICES['smpl']}) nor the SMPL-X mesh "
+                f"({NUM_VERTICES['smplx']})"
             )
         if layout != kind:
             raise MocapgraphError(
-                f"model file {path}: field 'v_template' has {V} vertices, the {layout} layout, but the "
+                f"{self._where}: field 'v_template' has {V} vertices, the {layout} layout, but the "
                 f"{kind} backend needs {NUM_VERTICES[kind]}; use the {layout} backend for this file"
             )
 
-        raw = self._field(path, content, "shapedirs")
+        raw = self._field(content, "shapedirs")
         if raw.ndim != 3 or raw.shape[:2] != (V, 3):
             raise MocapgraphError(f"{name('shapedirs')}: expected shape ({V}, 3, B), got {raw.shape}")
         B = raw.shape[2]
@@ -385,16 +399,19 @@ class SMPLBody(BodyModel):
             available = B
         if S > available:
             raise MocapgraphError(
-                f"{name('shapedirs')}: num_betas = {S} but the file has only {available} shape components"
+                f"{name('shapedirs')}: num_betas = {S} but the file has only {available} "
+                "shape components"
             )
         shapedirs = as_checked_array(raw[:, :, :S], name("shapedirs"), (V, 3, S))
 
-        regressor = as_checked_array(self._field(path, content, "J_regressor"), name("J_regressor"), (None, V))
+        regressor = as_checked_array(self._field(content, "J_regressor"), name("J_regressor"), (None, V))
         J = regressor.shape[0]
         if J < NUM_JOINTS:
-            raise MocapgraphError(f"{name('J_regressor')}: has {J} joints, expected at least {NUM_JOINTS}")
-        weights = as_checked_array(self._field(path, content, "weights"), name("weights"), (V, J))
-        parents = self._parents(path, self._field(path, content, "kintree_table"), J)
+            raise MocapgraphError(
+                f"{name('J_regressor')}: has {J} joints, expected at least {NUM_JOINTS}"
+            )
+        weights = as_checked_array(self._field(content, "weights"), name("weights"), (V, J))
+        parents = self._parents(self._field(content, "kintree_table"), J)
 
         drivers = _frozen_drivers(parents)
         self.num_vertices, self.num_source_joints = V, J
@@ -427,10 +444,12 @@ class SMPLBody(BodyModel):
             self._markers0[k] = w[:, None] * (v_template[v][None] - joints0)
             self._d_markers[k] = w[:, None, None] * (shapedirs[v][None] - d_joints)
 
-    def _parents(self, path: Path, kintree, J: int) -> np.ndarray:
-        where = f"model file {path}: field 'kintree_table'"
+    def _parents(self, kintree: np.ndarray, J: int) -> np.ndarray:
+        where = f"{self._where}: field 'kintree_table'"
         if kintree.shape != (2, J):
-            raise MocapgraphError(f"{where}: expected shape (2, {J}) to match J_regressor, got {kintree.shape}")
+            raise MocapgraphError(
+                f"{where}: expected shape (2, {J}) to match J_regressor, got {kintree.shape}"
+            )
         if not np.all(np.isfinite(kintree)) or not np.all(kintree == np.round(kintree)):
             raise MocapgraphError(f"{where}: contains non-integer entries")
         table = kintree.astype(np.int64)  # float files keep 4294967295 exactly
@@ -441,7 +460,9 @@ class SMPLBody(BodyModel):
         parents[ids] = table[0]
         roots = np.flatnonzero((parents < 0) | (parents >= J))
         if not np.array_equal(roots, [0]):
-            raise MocapgraphError(f"{where}: expected joint 0 to be the only root, found roots {roots.tolist()}")
+            raise MocapgraphError(
+                f"{where}: expected joint 0 to be the only root, found roots {roots.tolist()}"
+            )
         parents[0] = -1
         if np.any(parents[1:] == np.arange(1, J)):
             raise MocapgraphError(f"{where}: a joint is its own parent")

@@ -16,7 +16,9 @@ def _add_body_args(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--backend", choices=BACKENDS, default="anny", help="body model (default: anny)")
     parser.add_argument(
-        "--model-path", type=Path, help="your own SMPL/SMPL-X model file (.npz or .pkl) for --backend smpl/smplx"
+        "--model-path",
+        type=Path,
+        help="smpl/smplx: your own licensed model file (.npz or .pkl); anny: an exported table (default: the cache)",
     )
 
 

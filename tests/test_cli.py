@@ -1,0 +1,63 @@
+"""The command line: each subcommand's output, JSON contracts and one-line errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from mocapgraph.pipelines.cli import main
+
+
+def test_body_info_lists_joints_keypoints_and_shape(capsys):
+    assert main(["body", "info"]) == 0
+    out = capsys.readouterr().out
+    assert "21 right_wrist     [right_elbow]" in out
+    assert "keypoints (23): nose," in out
+    assert "height       range [0, 1]  default 0.5" in out
+
+
+def test_body_info_json(capsys):
+    assert main(["body", "info", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["backend"] == "anny" and len(info["joints"]) == 22 and info["parents"][16] == 13
+    assert [s["name"] for s in info["shape"]] == ["gender", "age", "muscle", "weight", "height", "proportions"]
+
+
+def test_bench_body_json_contract(capsys):
+    assert main(["bench", "body", "--json", "--frames", "16", "--seconds", "0.05"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for key in ("native_frames_per_s", "numpy_frames_per_s", "ratio", "max_jacobian_rel_err"):
+        assert key in result
+    assert result["max_jacobian_rel_err"] < 1e-6
+    assert result["ratio"] == pytest.approx(result["native_frames_per_s"] / result["numpy_frames_per_s"], rel=0.01)
+
+
+def test_smpl_without_a_model_file_is_one_clear_error(capsys):
+    assert main(["body", "info", "--backend", "smpl"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mocapgraph: error: the smpl backend needs your own licensed model file")
+    assert "Traceback" not in err
+
+
+def test_missing_smpl_file_is_one_clear_error(tmp_path, capsys):
+    assert main(["body", "info", "--backend", "smpl", "--model-path", str(tmp_path / "SMPL_NEUTRAL.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "SMPL_NEUTRAL.npz" in err and err.count("\n") == 1
+
+
+def test_demo_without_motion_dir_uses_builtin_poses(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--motion-dir", str(tmp_path / "no-motion")]) == 0
+    out = capsys.readouterr().out
+    assert "built-in poses: T-pose, stride, wave, squat" in out
+    png = tmp_path / "demo" / "body_poses.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    assert not list((tmp_path / "demo").glob("*.tmp*"))
+
+
+@pytest.mark.parametrize("args", [["--help"], ["body", "--help"], ["body", "info", "--help"], ["bench", "body", "--help"], ["demo", "--help"]])
+def test_every_subcommand_has_help(args):
+    proc = subprocess.run([sys.executable, "-m", "mocapgraph.pipelines.cli", *args], capture_output=True, text=True)
+    assert proc.returncode == 0 and "usage: mocapgraph" in proc.stdout
