@@ -34,7 +34,8 @@ def _angle_coefficients(rotvec: np.ndarray):
     small = theta < _SMALL_ANGLE
     safe = np.where(small, 1.0, theta)
     a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    # 2 sin²(θ/2) rather than 1 - cos θ: no cancellation just above the series threshold.
+    b = np.where(small, 0.5 - theta2 / 24.0, 2.0 * np.sin(0.5 * safe) ** 2 / safe**2)
     c = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (safe - np.sin(safe)) / safe**3)
     return a, b, c
 

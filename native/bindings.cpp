@@ -1,0 +1,321 @@
+// Python module mocapgraph._native: thin, validating wrappers around the native kernels.
+//
+// Every argument's shape is checked here (a ValueError names the argument) so that no
+// Python input can make a kernel read or write out of bounds. Results are new numpy arrays.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdint>
+#include <cstdlib>
+#include <memory>
+#include <mutex>
+#include <new>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "body_kernels.h"
+#include "reprojection.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+
+namespace {
+
+using InF = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+using InI = nb::ndarray<const std::int64_t, nb::c_contig, nb::device::cpu>;
+
+constexpr std::int64_t kAny = -1;
+
+std::string shape_text(const std::vector<std::int64_t>& shape) {
+  std::string s = "(";
+  for (std::size_t i = 0; i < shape.size(); ++i) {
+    if (i) s += ", ";
+    s += shape[i] < 0 ? std::string("N") : std::to_string(shape[i]);
+  }
+  if (shape.size() == 1) s += ",";
+  return s + ")";
+}
+
+// Throws ValueError (std::invalid_argument) naming `name` unless `a` has `expected` (kAny = any).
+template <class Array>
+void check_shape(const Array& a, const char* name, const std::vector<std::int64_t>& expected) {
+  bool ok = a.ndim() == expected.size();
+  for (std::size_t i = 0; ok && i < expected.size(); ++i)
+    ok = expected[i] < 0 || static_cast<std::int64_t>(a.shape(i)) == expected[i];
+  if (ok) return;
+  std::vector<std::int64_t> got;
+  for (std::size_t i = 0; i < a.ndim(); ++i) got.push_back(static_cast<std::int64_t>(a.shape(i)));
+  throw std::invalid_argument(std::string(name) + ": expected shape " + shape_text(expected) +
+                              ", got " + shape_text(got));
+}
+
+// Recycles large output buffers between calls.
+//
+// Jacobian outputs are megabytes per call, and freshly mapped memory costs a page fault per
+// 4 KiB on first touch; in a loop over batches those faults cost more than the kinematics
+// itself. Buffers released by numpy (the capsule deleter) are kept, up to kBudget bytes, and
+// handed to the next call that needs a buffer of at most that size.
+class BufferPool {
+ public:
+  static BufferPool& instance() {
+    // Leaked on purpose: arrays can outlive module teardown and still release into the pool.
+    static BufferPool* pool = new BufferPool;
+    return *pool;
+  }
+
+  // Returns a pointer to `bytes` usable bytes, 64-byte aligned.
+  void* acquire(std::size_t bytes) {
+    if (bytes >= kMinPooled) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      // Best fit among cached buffers no more than twice as large as requested.
+      std::size_t best = free_.size();
+      for (std::size_t i = 0; i < free_.size(); ++i) {
+        const std::size_t cap = capacity(free_[i]);
+        if (cap >= bytes && cap <= 2 * bytes && (best == free_.size() || cap < capacity(free_[best]))) best = i;
+      }
+      if (best != free_.size()) {
+        void* data = free_[best];
+        cached_bytes_ -= capacity(data);
+        free_[best] = free_.back();
+        free_.pop_back();
+        return data;
+      }
+    }
+    void* base = std::malloc(kHeader + (bytes == 0 ? 1 : bytes));
+    if (base == nullptr) throw std::bad_alloc();
+    *static_cast<std::size_t*>(base) = bytes;
+    return static_cast<char*>(base) + kHeader;
+  }
+
+  void release(void* data) noexcept {
+    const std::size_t cap = capacity(data);
+    if (cap >= kMinPooled) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (cached_bytes_ + cap <= kBudget) {
+        try {
+          free_.push_back(data);
+          cached_bytes_ += cap;
+          return;
+        } catch (...) {
+        }
+      }
+    }
+    std::free(static_cast<char*>(data) - kHeader);
+  }
+
+ private:
+  static constexpr std::size_t kHeader = 64;  // keeps the data 64-byte aligned after the size
+  static constexpr std::size_t kMinPooled = std::size_t(64) << 10;
+  static constexpr std::size_t kBudget = std::size_t(96) << 20;
+
+  static std::size_t capacity(void* data) {
+    return *reinterpret_cast<std::size_t*>(static_cast<char*>(data) - kHeader);
+  }
+
+  std::mutex mutex_;
+  std::vector<void*> free_;
+  std::size_t cached_bytes_ = 0;
+};
+
+// An output buffer that becomes the owner of a numpy array once handed to to_numpy.
+template <class T>
+class Buffer {
+ public:
+  explicit Buffer(std::vector<std::size_t> dims) : shape_(std::move(dims)) {
+    std::size_t n = 1;
+    for (std::size_t d : shape_) n *= d;
+    data_ = static_cast<T*>(BufferPool::instance().acquire(n * sizeof(T)));
+  }
+  ~Buffer() {
+    if (data_) BufferPool::instance().release(data_);
+  }
+  Buffer(const Buffer&) = delete;
+  Buffer& operator=(const Buffer&) = delete;
+
+  T* get() { return data_; }
+
+  nb::object to_numpy() {
+    T* raw = data_;
+    nb::capsule owner(raw, [](void* p) noexcept { BufferPool::instance().release(p); });
+    data_ = nullptr;
+    return nb::ndarray<nb::numpy, T>(raw, shape_.size(), shape_.data(), owner).cast();
+  }
+
+ private:
+  std::vector<std::size_t> shape_;
+  T* data_ = nullptr;
+};
+
+// Throws ValueError naming `name` (and the index if `indexed`) unless the 3x3 block of each
+// (4, 4) transform is a rotation.
+void check_rotations(const double* transforms, std::size_t count, const char* name, bool indexed) {
+  for (std::size_t n = 0; n < count; ++n) {
+    const double* T = transforms + 16 * n;
+    const double r[3][3] = {{T[0], T[1], T[2]}, {T[4], T[5], T[6]}, {T[8], T[9], T[10]}};
+    double err = 0.0;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const double dot = r[i][0] * r[j][0] + r[i][1] * r[j][1] + r[i][2] * r[j][2];
+        err = std::max(err, std::abs(dot - (i == j ? 1.0 : 0.0)));
+      }
+    const double det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) -
+                       r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) +
+                       r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+    err = std::max(err, std::abs(det - 1.0));
+    if (!(err <= 1e-6)) {
+      char detail[64];
+      std::snprintf(detail, sizeof detail, "(orthonormality/determinant error %.2g)", err);
+      const std::string which = indexed ? "[" + std::to_string(n) + "]" : "";
+      throw std::invalid_argument(std::string(name) + which + ": rotation block is not a rotation " + detail);
+    }
+  }
+}
+
+// Validates the six table arrays against each other and returns the kernel's view of them.
+mocapgraph::BodyTableView table_view(const InI& parents, const InF& offsets, const InF& d_offsets,
+                                     const InF& weights, const InF& markers, const InF& d_markers) {
+  if (parents.ndim() != 1 || parents.shape(0) == 0)
+    throw std::invalid_argument("parents: expected a non-empty 1-D int64 array");
+  const std::int64_t J = static_cast<std::int64_t>(parents.shape(0));
+  if (d_offsets.ndim() != 3)
+    throw std::invalid_argument("d_offsets: expected shape (" + std::to_string(J) + ", 3, S), got " +
+                                std::to_string(d_offsets.ndim()) + " dimensions");
+  if (weights.ndim() != 2)
+    throw std::invalid_argument("weights: expected shape (K, " + std::to_string(J) + "), got " +
+                                std::to_string(weights.ndim()) + " dimensions");
+  const std::int64_t S = static_cast<std::int64_t>(d_offsets.shape(2));
+  const std::int64_t K = static_cast<std::int64_t>(weights.shape(0));
+  check_shape(offsets, "offsets", {J, 3});
+  check_shape(d_offsets, "d_offsets", {J, 3, S});
+  check_shape(weights, "weights", {K, J});
+  check_shape(markers, "markers", {K, J, 3});
+  check_shape(d_markers, "d_markers", {K, J, 3, S});
+  mocapgraph::BodyTableView v;
+  v.num_joints = static_cast<std::size_t>(J);
+  v.num_keypoints = static_cast<std::size_t>(K);
+  v.shape_dim = static_cast<std::size_t>(S);
+  v.parents = parents.data();
+  v.offsets = offsets.data();
+  v.d_offsets = d_offsets.data();
+  v.weights = weights.data();
+  v.markers = markers.data();
+  v.d_markers = d_markers.data();
+  return v;
+}
+
+nb::tuple fk(const InI& parents, const InF& offsets, const InF& d_offsets, const InF& weights,
+             const InF& markers, const InF& d_markers, const InF& root, const InF& pose, bool jacobians) {
+  const mocapgraph::BodyKernel body(table_view(parents, offsets, d_offsets, weights, markers, d_markers));
+  const std::size_t J = body.num_joints(), K = body.num_keypoints(), P = body.num_params();
+  check_shape(root, "root", {kAny, 4, 4});
+  const std::size_t T = root.shape(0);
+  check_shape(pose, "pose", {static_cast<std::int64_t>(T), static_cast<std::int64_t>(J - 1), 3});
+
+  Buffer<double> joints({T, J, 3}), keypoints({T, K, 3}), rotations({T, J, 3, 3});
+  std::unique_ptr<Buffer<double>> d_joints, d_keypoints;
+  if (jacobians) {
+    d_joints = std::make_unique<Buffer<double>>(std::vector<std::size_t>{T, J, 3, P});
+    d_keypoints = std::make_unique<Buffer<double>>(std::vector<std::size_t>{T, K, 3, P});
+  }
+  mocapgraph::FrameOutputs out;
+  out.joints = joints.get();
+  out.keypoints = keypoints.get();
+  out.rotations = rotations.get();
+  out.d_joints = jacobians ? d_joints->get() : nullptr;
+  out.d_keypoints = jacobians ? d_keypoints->get() : nullptr;
+  {
+    nb::gil_scoped_release release;
+    body.pose_frames(T, root.data(), pose.data(), out);
+  }
+  return nb::make_tuple(joints.to_numpy(), keypoints.to_numpy(), rotations.to_numpy(),
+                        jacobians ? d_joints->to_numpy() : nb::none(),
+                        jacobians ? d_keypoints->to_numpy() : nb::none());
+}
+
+nb::tuple reproject(const InI& parents, const InF& offsets, const InF& d_offsets, const InF& weights,
+                    const InF& markers, const InF& d_markers, const InF& root, const InF& pose,
+                    const InF& cameras, const InF& intrinsics, const InF& observed, const InF& obs_weights,
+                    double gm_sigma_px, double min_depth, bool jacobians) {
+  const mocapgraph::BodyKernel body(table_view(parents, offsets, d_offsets, weights, markers, d_markers));
+  const std::int64_t J = static_cast<std::int64_t>(body.num_joints());
+  const std::int64_t K = static_cast<std::int64_t>(body.num_keypoints());
+  check_shape(root, "root", {4, 4});
+  check_shape(pose, "pose", {J - 1, 3});
+  check_shape(cameras, "cameras", {kAny, 4, 4});
+  const std::int64_t C = static_cast<std::int64_t>(cameras.shape(0));
+  check_shape(intrinsics, "intrinsics", {C, 4});
+  check_shape(observed, "observed", {C, K, 2});
+  check_shape(obs_weights, "obs_weights", {C, K});
+  check_rotations(root.data(), 1, "root", false);
+  check_rotations(cameras.data(), static_cast<std::size_t>(C), "cameras", true);
+  for (std::int64_t c = 0; c < C; ++c) {
+    const double* f = intrinsics.data() + 4 * c;
+    if (!(f[0] > 0.0 && f[1] > 0.0 && std::isfinite(f[0]) && std::isfinite(f[1]) && std::isfinite(f[2]) &&
+          std::isfinite(f[3])))
+      throw std::invalid_argument("intrinsics: camera " + std::to_string(c) +
+                                  " needs finite fx, fy, cx, cy with fx, fy > 0");
+  }
+  for (std::int64_t i = 0; i < 2 * C * K; ++i)
+    if (std::isinf(observed.data()[i]))
+      throw std::invalid_argument("observed: contains inf (mark missing detections with NaN)");
+  if (std::isnan(gm_sigma_px)) throw std::invalid_argument("gm_sigma_px: must not be NaN");
+  if (!(min_depth > 0.0) || !std::isfinite(min_depth))
+    throw std::invalid_argument("min_depth: must be a finite positive depth in metres");
+  for (std::int64_t i = 0; i < C * K; ++i)
+    if (!(obs_weights.data()[i] >= 0.0) || std::isinf(obs_weights.data()[i]))
+      throw std::invalid_argument("obs_weights: must be finite and >= 0 (camera " + std::to_string(i / K) +
+                                  ", keypoint " + std::to_string(i % K) + ")");
+
+  const std::size_t rows = static_cast<std::size_t>(2 * C * K);
+  const std::size_t cols = body.num_params() + 6 * static_cast<std::size_t>(C);
+  Buffer<double> residual({rows});
+  Buffer<bool> valid({static_cast<std::size_t>(C), static_cast<std::size_t>(K)});
+  std::unique_ptr<Buffer<double>> jacobian;
+  if (jacobians) jacobian = std::make_unique<Buffer<double>>(std::vector<std::size_t>{rows, cols});
+
+  mocapgraph::ReprojectionInputs in;
+  in.root = root.data();
+  in.pose = pose.data();
+  in.num_cameras = static_cast<std::size_t>(C);
+  in.cameras = cameras.data();
+  in.intrinsics = intrinsics.data();
+  in.observed = observed.data();
+  in.obs_weights = obs_weights.data();
+  in.gm_sigma_px = gm_sigma_px;
+  in.min_depth = min_depth;
+  mocapgraph::ReprojectionOutputs out;
+  out.residual = residual.get();
+  out.jacobian = jacobians ? jacobian->get() : nullptr;
+  out.valid = valid.get();
+  {
+    nb::gil_scoped_release release;
+    mocapgraph::reproject_frame(body, in, out);
+  }
+  return nb::make_tuple(residual.to_numpy(), jacobians ? jacobian->to_numpy() : nb::none(), valid.to_numpy());
+}
+
+}  // namespace
+
+NB_MODULE(_native, m) {
+  m.doc() = "Native kernels of mocapgraph: body forward kinematics and multi-camera reprojection.";
+
+  m.def("fk", &fk, "parents"_a, "offsets"_a, "d_offsets"_a, "weights"_a, "markers"_a, "d_markers"_a,
+        "root"_a, "pose"_a, "jacobians"_a,
+        "Forward kinematics of T frames: root (T, 4, 4) world_T_root, pose (T, J-1, 3) axis-angle.\n\n"
+        "Returns (joints (T, J, 3), keypoints (T, K, 3), rotations (T, J, 3, 3),\n"
+        "d_joints (T, J, 3, P) or None, d_keypoints (T, K, 3, P) or None), P = 6 + 3 (J-1) + S;\n"
+        "columns as in mocapgraph.body.kinematics.");
+
+  m.def("reproject", &reproject, "parents"_a, "offsets"_a, "d_offsets"_a, "weights"_a, "markers"_a,
+        "d_markers"_a, "root"_a, "pose"_a, "cameras"_a, "intrinsics"_a, "observed"_a, "obs_weights"_a,
+        "gm_sigma_px"_a, "min_depth"_a, "jacobians"_a,
+        "Geman-McClure weighted reprojection residual of one frame into C cameras.\n\n"
+        "root (4, 4) world_T_root, pose (J-1, 3), cameras (C, 4, 4) world_T_camera (OpenCV axes),\n"
+        "intrinsics (C, 4) fx, fy, cx, cy, observed (C, K, 2) pixels (NaN = missing), obs_weights (C, K).\n"
+        "Returns (residual (2 C K,), jacobian (2 C K, P + 6 C) or None, valid (C, K) bool);\n"
+        "see mocapgraph.factors.reprojection_kernel for the layout.");
+}
