@@ -96,6 +96,20 @@ inline bool any_nonzero(const double* p, std::size_t n) {
   return acc != 0;
 }
 
+// Row i (x, y or z) of a point's root and joint-rotation columns: blk[0:9] is the root-rotation
+// block, blk[9c:9c+9] joint c's block (used where moves[c]), translation = scale * R0.
+inline void write_pose_columns(double* row, int i, const double* blk, const double* R0, double scale,
+                               const std::uint8_t* moves, std::size_t J) {
+  for (int k = 0; k < 3; ++k) {
+    row[k] = blk[3 * i + k];
+    row[3 + k] = scale * R0[3 * i + k];
+  }
+  for (std::size_t c = 1; c < J; ++c) {
+    double* r = row + 6 + 3 * (c - 1);
+    for (int k = 0; k < 3; ++k) r[k] = moves[c] ? blk[9 * c + 3 * i + k] : 0.0;
+  }
+}
+
 }  // namespace
 
 BodyKernel::BodyKernel(const BodyTableView& table) : table_(table) {
@@ -204,22 +218,7 @@ void BodyKernel::pose_frame(const double* root, const double* pose, const FrameO
       }
       for (int i = 0; i < 3; ++i) {
         double* row = out.d_joints + (3 * d + i) * P;
-        row[0] = blk[3 * i];
-        row[1] = blk[3 * i + 1];
-        row[2] = blk[3 * i + 2];
-        row[3] = R0[3 * i];
-        row[4] = R0[3 * i + 1];
-        row[5] = R0[3 * i + 2];
-        for (std::size_t c = 1; c < J; ++c) {
-          double* r = row + 6 + 3 * (c - 1);
-          if (anc[c]) {
-            r[0] = blk[9 * c + 3 * i];
-            r[1] = blk[9 * c + 3 * i + 1];
-            r[2] = blk[9 * c + 3 * i + 2];
-          } else {
-            r[0] = r[1] = r[2] = 0.0;
-          }
-        }
+        write_pose_columns(row, i, blk, R0, 1.0, anc, J);
         std::copy(dX + (3 * d + i) * S, dX + (3 * d + i + 1) * S, row + shape_col);
       }
     }
@@ -288,22 +287,7 @@ void BodyKernel::pose_frame(const double* root, const double* pose, const FrameO
     double* rows = out.d_keypoints + 3 * k * P;
     for (int i = 0; i < 3; ++i) {
       double* row = rows + i * P;
-      row[0] = blk[3 * i];
-      row[1] = blk[3 * i + 1];
-      row[2] = blk[3 * i + 2];
-      row[3] = wsum * R0[3 * i];
-      row[4] = wsum * R0[3 * i + 1];
-      row[5] = wsum * R0[3 * i + 2];
-      for (std::size_t c = 1; c < J; ++c) {
-        double* r = row + 6 + 3 * (c - 1);
-        if (mask[c]) {
-          r[0] = blk[9 * c + 3 * i];
-          r[1] = blk[9 * c + 3 * i + 1];
-          r[2] = blk[9 * c + 3 * i + 2];
-        } else {
-          r[0] = r[1] = r[2] = 0.0;
-        }
-      }
+      write_pose_columns(row, i, blk, R0, wsum, mask, J);
       std::fill(row + shape_col, row + P, 0.0);
     }
     if (S == 0) continue;
