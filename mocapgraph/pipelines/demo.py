@@ -35,7 +35,8 @@ def builtin_poses() -> tuple[list[str], np.ndarray, np.ndarray]:
         poses[3, j(f"{side}_hip") - 1] = [-1.3, 0, 0]
         poses[3, j(f"{side}_knee") - 1] = [2.0, 0, 0]
         poses[3, j(f"{side}_ankle") - 1] = [-0.6, 0, 0]
-        poses[3, j(f"{side}_shoulder") - 1] = [-1.2, 0, 0]
+    poses[3, j("left_shoulder") - 1] = [0, -1.4, 0]  # both arms reach forward
+    poses[3, j("right_shoulder") - 1] = [0, 1.4, 0]
     root = np.tile(np.eye(4), (4, 1, 1))
     root[:, :3, :3] = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])  # body Y-up into world Z-up
     root[:, 2, 3] = [0.95, 0.9, 0.95, 0.55]
@@ -54,7 +55,6 @@ def cmu_poses(body: BodyModel, motion_dir: Path) -> tuple[list[str], np.ndarray,
         take = load_cmu_take(path)
         root, pose = retarget(take, body)
         frame = min(frame, len(pose) - 1)
-        root[frame, :3, 3] -= [root[frame, 0, 3], root[frame, 1, 3], 0.0]  # centre horizontally
         names.append(f"{path.stem} frame {frame}")
         roots.append(root[frame])
         poses.append(pose[frame])
@@ -63,8 +63,21 @@ def cmu_poses(body: BodyModel, motion_dir: Path) -> tuple[list[str], np.ndarray,
     return names, np.stack(roots), np.stack(poses)
 
 
+def face_the_viewer(root: np.ndarray) -> np.ndarray:
+    """Turn each ``world_T_root (T, 4, 4)`` about world Z so the body faces −Y, over the origin."""
+    from mocapgraph.body.rotations import axis_rotation
+
+    out = root.copy()
+    for t, pose in enumerate(root):
+        forward = pose[:3, :3] @ [0.0, 0.0, 1.0]  # the body's +Z in the world
+        yaw = np.arctan2(forward[1], forward[0])
+        out[t, :3, :3] = axis_rotation("z", -np.pi / 2 - yaw) @ pose[:3, :3]
+        out[t, :2, 3] = 0.0
+    return out
+
+
 def draw(body: BodyModel, names: list[str], root: np.ndarray, pose: np.ndarray, out: Path) -> Path:
-    """PNG of each pose's skeleton and keypoints, front (looking along +Y) and side (along −X)."""
+    """PNG of each pose's skeleton and keypoints: front (world X–Z, the body faces −Y) and side (Y–Z)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -109,9 +122,9 @@ def run_demo(out_dir: Path, motion_dir: Path | None = None) -> Path:
     if chosen is None:
         chosen, source = builtin_poses(), "built-in poses"
     names, root, pose = chosen
+    root = face_the_viewer(root)
     # Stand the body on the floor: lowest keypoint at z = 0.
     lowest = body.forward(body.default_shape, root, pose).keypoints[..., 2].min(axis=1)
-    root = root.copy()
     root[:, 2, 3] -= lowest
     path = draw(body, names, root, pose, out_dir / "body_poses.png")
     print(f"posed the {body.name} body in {len(names)} {source}: {', '.join(names)}")
