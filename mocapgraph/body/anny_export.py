@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import os
 import time
+from importlib.metadata import version
 
 import numpy as np
 
 from mocapgraph.body.rotations import axis_rotation, minimal_rotation
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
+from mocapgraph.errors import MocapgraphError
 
 EXPORT_FORMAT = 2
 
@@ -47,13 +49,25 @@ SMPL_TO_ANNY_AXES = axis_rotation("x", np.pi / 2)
 
 
 def _np(t) -> np.ndarray:
-    return t.detach().cpu().to(dtype=__import__("torch").float64).numpy().copy()
+    """A torch tensor as a float64 numpy array that owns its memory."""
+    return t.detach().cpu().double().numpy().copy()
 
 
 def load_anny_model():
     """Anny's default model (rig ``anny``, default phenotypes), float64, with a progress message."""
-    import torch  # noqa: F401  (anny needs it; imported first for a clear error)
-    import anny
+    try:
+        import warp  # Anny's optional skinning backend prints a banner per kernel unless quiet
+
+        warp.config.quiet = True
+    except ImportError:
+        pass
+    try:
+        import anny
+    except ImportError as exc:
+        raise MocapgraphError(
+            f"exporting the Anny body model needs the anny package and torch ({exc}); "
+            "install them with `pip install anny torch`"
+        ) from None
 
     cache = os.environ.get("ANNY_CACHE_DIR", "~/.cache/anny")
     print(f"mocapgraph: building the Anny body model (first time ~1 min, cache {cache}) ...", flush=True)
@@ -86,11 +100,13 @@ def bone_owners(labels: list[str], bone_parents: list[int]) -> tuple[np.ndarray,
 
 
 def export_anny_table(model=None) -> dict[str, np.ndarray]:
-    """Arrays of the reduced Anny model; see :class:`anny_backend.AnnyTableData` for their meaning."""
-    import anny
-    import torch
+    """Arrays of the reduced Anny model, as :class:`anny_backend.AnnyBody` evaluates them.
 
+    Steps ``s_e`` and the keypoint bone pairs are explained inline; everything stays in Anny's
+    axes except ``rebase`` / ``axes``, which the backend applies last.
+    """
     model = model if model is not None else load_anny_model()
+    import anny  # importable once the model is loaded
     labels = list(model.bone_labels)
     bone_parents = [int(p) for p in model.bone_parents]
     B = len(labels)
@@ -159,7 +175,7 @@ def export_anny_table(model=None) -> dict[str, np.ndarray]:
 
     return {
         "export_format": np.array(EXPORT_FORMAT),
-        "anny_version": np.array(anny.__version__ if hasattr(anny, "__version__") else _anny_version()),
+        "anny_version": np.array(version("anny")),
         "feature_names": np.array(features),
         "anchors": np.stack([np.pad(anchors[f], (0, 5 - len(anchors[f])), constant_values=np.nan) for f in features]),
         "anchor_counts": np.array([len(anchors[f]) for f in features]),
@@ -186,9 +202,3 @@ def export_anny_table(model=None) -> dict[str, np.ndarray]:
         "rebase": rebase,
         "axes": SMPL_TO_ANNY_AXES,
     }
-
-
-def _anny_version() -> str:
-    from importlib.metadata import version
-
-    return version("anny")
