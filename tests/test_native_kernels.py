@@ -451,14 +451,9 @@ def test_reproject_rejects_bad_input_naming_the_argument(name, bad):
 def test_native_reproject_rejects_bad_shapes_with_value_error():
     scene = make_scene(seed=9)
     C, K = scene.obs_weights.shape
-    good = dict(
-        root=scene.root,
-        pose=scene.pose,
-        cameras=scene.cameras,
-        intrinsics=scene.intrinsics,
-        observed=scene.observed,
-        obs_weights=scene.obs_weights,
-    )
+    good = good_reproject_args(scene)
+    for scalar in ("table", "gm_sigma_px", "min_depth"):
+        del good[scalar]
     bad_cases = {
         "root": np.eye(3),
         "pose": np.zeros((NUM_JOINTS, 3)),
