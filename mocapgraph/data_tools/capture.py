@@ -1,0 +1,545 @@
+"""The capture format: what every pipeline reads (``docs/capture-format.md`` documents each field).
+
+A capture is a directory with a ``capture.toml`` manifest and array files (``.npy`` / ``.npz``).
+:func:`load_capture` validates everything on read and raises one :class:`CaptureError` naming
+the file and the field; :func:`write_capture` writes into a temporary directory and renames it
+into place, so a crash never leaves a half-written capture where a good one was.
+
+In memory, camera poses are ``world_T_camera (…, 4, 4)`` (OpenCV camera: x right, y down,
+z forward; the convention of ``gtsam.PinholeCamera``). Files store ``R, t`` world→camera
+(``x_cam = R x_world + t``), as OpenCV does.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.errors import MocapgraphError
+
+FORMAT_NAME = "mocapgraph-capture"
+FORMAT_VERSION = 1
+MANIFEST = "capture.toml"
+
+# Arrays each sensor log must hold, with their trailing shapes (N leading rows, one per sample).
+SENSOR_FIELDS: dict[str, dict[str, tuple[int, ...]]] = {
+    "gps": {"t": (), "position": (3,), "sigma": (3,)},
+    "imu": {"t": (), "accel": (3,), "gyro": (3,)},
+    "baro": {"t": (), "altitude": (), "sigma": ()},
+    "self_pose": {"t": (), "rotation": (3, 3), "position": (3,)},
+}
+
+
+class CaptureError(MocapgraphError):
+    """A capture that cannot be read or written; the message names the file and the field."""
+
+
+@dataclass
+class Detector:
+    """One 2D detector's output for one camera.
+
+    Attributes:
+        name: unique per camera (e.g. ``"openpose"``).
+        format: keypoint format of the registry (``coco17``, ``openpose25``, ``blazepose33``, …).
+        keypoints: ``(T_c, K, 3)`` pixels x, y and confidence in [0, 1]; NaN rows = missing.
+        boxes: ``(T_c, 5)`` person box x0, y0, x1, y1 (pixels) and score, NaN when none; or None.
+    """
+
+    name: str
+    format: str
+    keypoints: np.ndarray
+    boxes: np.ndarray | None = None
+
+
+@dataclass
+class Camera:
+    """One camera of a capture.
+
+    Attributes:
+        name: unique, a plain file name (it names the camera's folder).
+        K: ``(3, 3)`` intrinsic matrix, pixels.
+        distortion: ``(5,)`` OpenCV ``k1, k2, p1, p2, k3``.
+        image_size: ``(width, height)`` pixels.
+        moving: whether the camera moves during the capture.
+        timestamps: ``(T_c,)`` float64 seconds of each frame, strictly increasing.
+        frame_rate: nominal frames per second.
+        detectors: by name.
+        extrinsics: known ``world_T_camera`` from a calibration, ``(1, 4, 4)`` (static) or
+            ``(T_c, 4, 4)``; None when uncalibrated. Not ground truth.
+        mount: ``(4, 4)`` vehicle_T_camera for cameras on a vehicle with sensors, else None.
+        sensors: sensor logs by kind (keys of :data:`SENSOR_FIELDS`), each a dict of arrays.
+        video: path of the camera's video relative to the capture directory, or None.
+    """
+
+    name: str
+    K: np.ndarray
+    distortion: np.ndarray
+    image_size: tuple[int, int]
+    moving: bool
+    timestamps: np.ndarray
+    frame_rate: float
+    detectors: dict[str, Detector] = field(default_factory=dict)
+    extrinsics: np.ndarray | None = None
+    mount: np.ndarray | None = None
+    sensors: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    video: str | None = None
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.timestamps)
+
+
+@dataclass
+class GroundTruth:
+    """What really happened (synthetic captures, or a reference system).
+
+    Attributes:
+        body_model: backend name the body parameters refer to (``anny``, ``smpl``, …).
+        timestamps: ``(T,)`` seconds of the body states.
+        root: ``(T, 4, 4)`` world_T_root.
+        pose: ``(T, 21, 3)`` local axis-angle.
+        shape: ``(S,)``.
+        joints: ``(T, 22, 3)`` world, metres.
+        cameras: per camera name, ``(T_c, 4, 4)`` world_T_camera at that camera's timestamps.
+    """
+
+    body_model: str
+    timestamps: np.ndarray
+    root: np.ndarray
+    pose: np.ndarray
+    shape: np.ndarray
+    joints: np.ndarray
+    cameras: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class Capture:
+    """A multi-camera recording: cameras with detections and sensors, optional ground truth.
+
+    Attributes:
+        name: short identifier.
+        cameras: in manifest order.
+        world_frame: what the world frame of extrinsics, sensors and ground truth is
+            (e.g. ``"ENU, metres, origin at the first GPS fix"``).
+        ground_truth: or None.
+        metadata: free-form manifest entries (generator, seed, scenario, …).
+        path: the directory it was loaded from, or None.
+    """
+
+    name: str
+    cameras: list[Camera]
+    world_frame: str = "unspecified"
+    ground_truth: GroundTruth | None = None
+    metadata: dict = field(default_factory=dict)
+    path: Path | None = None
+
+    def camera(self, name: str) -> Camera:
+        for cam in self.cameras:
+            if cam.name == name:
+                return cam
+        raise CaptureError(f"capture {self.name!r} has no camera {name!r} (cameras: {', '.join(c.name for c in self.cameras)})")
+
+
+# ---------------------------------------------------------------------------------------------
+# Pose conversion between memory (world_T_camera) and files (R, t world→camera)
+
+
+def world_T_camera_from_Rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``R (…, 3, 3), t (…, 3)`` world→camera → ``world_T_camera (…, 4, 4)``."""
+    out = np.zeros(R.shape[:-2] + (4, 4))
+    Rt = np.swapaxes(R, -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, t)
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def Rt_from_world_T_camera(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``world_T_camera (…, 4, 4)`` → ``R (…, 3, 3), t (…, 3)`` world→camera."""
+    R = np.swapaxes(T[..., :3, :3], -1, -2)
+    return R, -np.einsum("...ij,...j->...i", R, T[..., :3, 3])
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation helpers: every failure names the file and the field
+
+
+class _Where:
+    """Names a place in the capture for error messages: ``file: field``."""
+
+    def __init__(self, file: str, field: str = ""):
+        self.file, self.field = file, field
+
+    def __call__(self, sub: str) -> _Where:
+        return _Where(self.file, f"{self.field}.{sub}" if self.field else sub)
+
+    def fail(self, message: str) -> CaptureError:
+        place = f"{self.file}: {self.field}" if self.field else self.file
+        return CaptureError(f"{place}: {message}")
+
+
+def _array(value, where: _Where, shape: tuple[int | None, ...], *, allow_nan: bool = False) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise where.fail("not a numeric array") from None
+    if arr.ndim != len(shape) or any(s is not None and s != g for s, g in zip(shape, arr.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise where.fail(f"expected shape {want}, got {arr.shape}")
+    bad = np.isinf(arr) if allow_nan else ~np.isfinite(arr)
+    if np.any(bad):
+        raise where.fail(f"contains {'inf' if allow_nan else 'NaN or inf'} (first at {tuple(int(i) for i in np.argwhere(bad)[0])})")
+    return arr
+
+
+def _rotations(R: np.ndarray, where: _Where) -> None:
+    err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(initial=0.0)
+    if err > 1e-6 or np.any(np.linalg.det(R) < 0):
+        raise where.fail(f"not a rotation matrix (orthonormality error {err:.2g})")
+
+
+def _increasing(t: np.ndarray, where: _Where) -> None:
+    if t.size == 0:
+        raise where.fail("is empty")
+    if np.any(np.diff(t) <= 0):
+        i = int(np.argmax(np.diff(t) <= 0))
+        raise where.fail(f"must be strictly increasing (index {i + 1}: {t[i + 1]!r} after {t[i]!r})")
+
+
+def _key(table: dict, key: str, where: _Where, kind=None):
+    if key not in table:
+        raise where(key).fail("missing")
+    value = table[key]
+    if kind is not None and not isinstance(value, kind):
+        raise where(key).fail(f"expected {kind.__name__ if isinstance(kind, type) else ' or '.join(k.__name__ for k in kind)}, got {type(value).__name__}")
+    return value
+
+
+class _Files:
+    """Reads array files under a capture directory, naming them in every error."""
+
+    def __init__(self, root: Path):
+        self.root = root
+
+    def resolve(self, rel: str, where: _Where) -> Path:
+        path = (self.root / rel).resolve()
+        if self.root.resolve() not in path.parents:
+            raise where.fail(f"path {rel!r} points outside the capture directory")
+        if not path.is_file():
+            raise where.fail(f"file {rel!r} not found")
+        return path
+
+    def npy(self, rel: str, where: _Where) -> np.ndarray:
+        path = self.resolve(rel, where)
+        try:
+            return np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise CaptureError(f"{rel}: not a readable .npy file ({exc})") from None
+
+    def npz(self, rel: str, where: _Where, required: tuple[str, ...]) -> dict[str, np.ndarray]:
+        path = self.resolve(rel, where)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except (OSError, ValueError) as exc:
+            raise CaptureError(f"{rel}: not a readable .npz file ({exc})") from None
+        for key in required:
+            if key not in arrays:
+                raise CaptureError(f"{rel}: {key}: missing (the file has {', '.join(sorted(arrays)) or 'nothing'})")
+        return arrays
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+
+
+def load_capture(path: str | Path) -> Capture:
+    """Read and validate a capture directory (or its ``capture.toml``)."""
+    path = Path(path)
+    root = path.parent if path.name == MANIFEST else path
+    manifest = root / MANIFEST
+    if not root.exists():
+        raise CaptureError(f"{root}: capture directory not found")
+    if not manifest.is_file():
+        raise CaptureError(f"{manifest}: missing (a capture is a directory with a {MANIFEST} manifest)")
+    try:
+        doc = tomllib.loads(manifest.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise CaptureError(f"{manifest}: not valid TOML ({exc})") from None
+    where = _Where(MANIFEST)
+    if doc.get("format") != FORMAT_NAME:
+        raise where("format").fail(f"expected {FORMAT_NAME!r}, got {doc.get('format')!r}")
+    version = doc.get("version")
+    if version != FORMAT_VERSION:
+        raise where("version").fail(f"this mocapgraph reads version {FORMAT_VERSION}, the file says {version!r}")
+    files = _Files(root)
+    cams = _key(doc, "cameras", where, list)
+    if not cams:
+        raise where("cameras").fail("a capture needs at least one camera")
+    cameras = [_read_camera(c, where(f"cameras[{i}]"), files) for i, c in enumerate(cams)]
+    names = [c.name for c in cameras]
+    if len(set(names)) != len(names):
+        raise where("cameras").fail(f"camera names must be unique, got {names}")
+    gt = None
+    if "ground_truth" in doc:
+        gt = _read_ground_truth(doc["ground_truth"], where("ground_truth"), files, cameras)
+    metadata = {k: v for k, v in doc.items() if k not in ("format", "version", "name", "world_frame", "cameras", "ground_truth")}
+    return Capture(
+        name=str(doc.get("name", root.name)),
+        cameras=cameras,
+        world_frame=str(doc.get("world_frame", "unspecified")),
+        ground_truth=gt,
+        metadata=metadata,
+        path=root,
+    )
+
+
+def _read_camera(doc, where: _Where, files: _Files) -> Camera:
+    if not isinstance(doc, dict):
+        raise where.fail("expected a table")
+    name = _key(doc, "name", where, str)
+    if not name or "/" in name or name.startswith("."):
+        raise where("name").fail(f"{name!r} is not a plain file name")
+    where = _Where(where.file, f"cameras.{name}")
+    K = _array(_key(doc, "K", where, list), where("K"), (3, 3))
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
+        raise where("K").fail("needs fx > 0, fy > 0 and a last row [0, 0, 1]")
+    size = _key(doc, "image_size", where, list)
+    if len(size) != 2 or not all(isinstance(s, int) and s > 0 for s in size):
+        raise where("image_size").fail(f"expected [width, height] in pixels, got {size}")
+    distortion = _array(doc.get("distortion", [0.0] * 5), where("distortion"), (5,))
+    moving = _key(doc, "moving", where, bool)
+    rate = float(_key(doc, "frame_rate", where, (int, float)))
+    if rate <= 0:
+        raise where("frame_rate").fail(f"must be positive, got {rate}")
+    ts_file = _key(doc, "timestamps", where, str)
+    timestamps = _array(files.npy(ts_file, where("timestamps")), _Where(ts_file, "timestamps"), (None,))
+    _increasing(timestamps, _Where(ts_file, "timestamps"))
+    T = len(timestamps)
+
+    detectors = {}
+    for i, det in enumerate(doc.get("detectors", [])):
+        d = _read_detector(det, where(f"detectors[{i}]"), files, T)
+        if d.name in detectors:
+            raise where("detectors").fail(f"detector name {d.name!r} appears twice")
+        detectors[d.name] = d
+
+    extrinsics = None
+    if "extrinsics" in doc:
+        rel = _key(doc, "extrinsics", where, str)
+        arrays = files.npz(rel, where("extrinsics"), ("R", "t"))
+        R = _array(arrays["R"], _Where(rel, "R"), (None, 3, 3))
+        t = _array(arrays["t"], _Where(rel, "t"), (R.shape[0], 3))
+        if R.shape[0] not in (1, T):
+            raise _Where(rel, "R").fail(f"needs 1 (static) or {T} (one per frame) poses, got {R.shape[0]}")
+        _rotations(R, _Where(rel, "R"))
+        extrinsics = world_T_camera_from_Rt(R, t)
+
+    mount = None
+    if "mount" in doc:
+        mount = _array(doc["mount"], where("mount"), (4, 4))
+        _rotations(mount[:3, :3], where("mount"))
+
+    sensors = {}
+    for i, sensor in enumerate(doc.get("sensors", [])):
+        kind, arrays = _read_sensor(sensor, where(f"sensors[{i}]"), files)
+        if kind in sensors:
+            raise where("sensors").fail(f"sensor kind {kind!r} appears twice")
+        sensors[kind] = arrays
+
+    video = doc.get("video")
+    if video is not None:
+        files.resolve(str(video), where("video"))
+    return Camera(
+        name=name,
+        K=K,
+        distortion=distortion,
+        image_size=(size[0], size[1]),
+        moving=moving,
+        timestamps=timestamps,
+        frame_rate=rate,
+        detectors=detectors,
+        extrinsics=extrinsics,
+        mount=mount,
+        sensors=sensors,
+        video=video,
+    )
+
+
+def _read_detector(doc, where: _Where, files: _Files, frames: int) -> Detector:
+    if not isinstance(doc, dict):
+        raise where.fail("expected a table")
+    name = _key(doc, "name", where, str)
+    fmt_name = _key(doc, "format", where, str)
+    try:
+        fmt = get_format(fmt_name)
+    except MocapgraphError as exc:
+        raise where("format").fail(str(exc)) from None
+    rel = _key(doc, "file", where, str)
+    arrays = files.npz(rel, where("file"), ("keypoints",))
+    kp = _array(arrays["keypoints"], _Where(rel, "keypoints"), (frames, fmt.num_points, 3), allow_nan=True)
+    conf = kp[..., 2][np.isfinite(kp[..., 2])]
+    if np.any((conf < 0) | (conf > 1)):
+        raise _Where(rel, "keypoints").fail("confidences must lie in [0, 1] (missing points are NaN, never 0)")
+    boxes = None
+    if "boxes" in arrays:
+        boxes = _array(arrays["boxes"], _Where(rel, "boxes"), (frames, 5), allow_nan=True)
+    return Detector(name=name, format=fmt.name, keypoints=kp, boxes=boxes)
+
+
+def _read_sensor(doc, where: _Where, files: _Files) -> tuple[str, dict[str, np.ndarray]]:
+    if not isinstance(doc, dict):
+        raise where.fail("expected a table")
+    kind = _key(doc, "kind", where, str)
+    if kind not in SENSOR_FIELDS:
+        raise where("kind").fail(f"unknown sensor kind {kind!r}; known: {', '.join(SENSOR_FIELDS)}")
+    rel = _key(doc, "file", where, str)
+    spec = SENSOR_FIELDS[kind]
+    raw = files.npz(rel, where("file"), tuple(spec))
+    t = _array(raw["t"], _Where(rel, "t"), (None,))
+    _increasing(t, _Where(rel, "t"))
+    arrays = {k: _array(raw[k], _Where(rel, k), (len(t), *trailing)) for k, trailing in spec.items()}
+    if kind == "self_pose":
+        _rotations(arrays["rotation"], _Where(rel, "rotation"))
+    return kind, arrays
+
+
+def _read_ground_truth(doc, where: _Where, files: _Files, cameras: list[Camera]) -> GroundTruth:
+    if not isinstance(doc, dict):
+        raise where.fail("expected a table")
+    body_model = _key(doc, "body_model", where, str)
+    rel = _key(doc, "body", where, str)
+    body = files.npz(rel, where("body"), ("timestamps", "R", "t", "pose", "shape", "joints"))
+    ts = _array(body["timestamps"], _Where(rel, "timestamps"), (None,))
+    _increasing(ts, _Where(rel, "timestamps"))
+    T = len(ts)
+    R = _array(body["R"], _Where(rel, "R"), (T, 3, 3))
+    _rotations(R, _Where(rel, "R"))
+    root = np.tile(np.eye(4), (T, 1, 1))
+    root[:, :3, :3] = R
+    root[:, :3, 3] = _array(body["t"], _Where(rel, "t"), (T, 3))
+    pose = _array(body["pose"], _Where(rel, "pose"), (T, 21, 3))
+    shape = _array(body["shape"], _Where(rel, "shape"), (None,))
+    joints = _array(body["joints"], _Where(rel, "joints"), (T, 22, 3))
+    cams = {}
+    if "cameras" in doc:
+        crel = _key(doc, "cameras", where, str)
+        arrays = files.npz(crel, where("cameras"), ())
+        for cam in cameras:
+            if f"{cam.name}.R" not in arrays:
+                continue
+            Rc = _array(arrays[f"{cam.name}.R"], _Where(crel, f"{cam.name}.R"), (cam.num_frames, 3, 3))
+            tc = _array(arrays.get(f"{cam.name}.t"), _Where(crel, f"{cam.name}.t"), (cam.num_frames, 3))
+            _rotations(Rc, _Where(crel, f"{cam.name}.R"))
+            cams[cam.name] = world_T_camera_from_Rt(Rc, tc)
+        unknown = {k.split(".")[0] for k in arrays} - {c.name for c in cameras}
+        if unknown:
+            raise _Where(crel).fail(f"poses for unknown cameras {sorted(unknown)}")
+    return GroundTruth(body_model, ts, root, pose, shape, joints, cams)
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing
+
+
+def write_capture(capture: Capture, path: str | Path, overwrite: bool = False) -> Path:
+    """Write ``capture`` as a directory at ``path``, atomically; returns the path.
+
+    Everything goes into a temporary sibling directory that replaces ``path`` only when complete.
+    The capture is validated by reading the temporary copy back before it is moved into place.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise CaptureError(f"{path}: already exists (pass overwrite=True / --overwrite to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
+    try:
+        _write_into(capture, tmp)
+        load_capture(tmp)  # never move an unreadable capture into place
+        if path.exists():
+            old = path.with_name(f".{path.name}.old-{os.getpid()}")
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
+
+
+def _write_into(capture: Capture, root: Path) -> None:
+    import tomli_w
+
+    doc: dict = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "name": capture.name,
+        "world_frame": capture.world_frame,
+        **capture.metadata,
+        "cameras": [],
+    }
+    for cam in capture.cameras:
+        folder = root / "cameras" / cam.name
+        folder.mkdir(parents=True, exist_ok=True)
+        rel = f"cameras/{cam.name}"
+        np.save(folder / "timestamps.npy", np.asarray(cam.timestamps, dtype=np.float64))
+        entry = {
+            "name": cam.name,
+            "image_size": [int(cam.image_size[0]), int(cam.image_size[1])],
+            "K": np.asarray(cam.K, dtype=float).tolist(),
+            "distortion": np.asarray(cam.distortion, dtype=float).tolist(),
+            "moving": bool(cam.moving),
+            "frame_rate": float(cam.frame_rate),
+            "timestamps": f"{rel}/timestamps.npy",
+        }
+        if cam.video is not None:
+            entry["video"] = cam.video
+        if cam.mount is not None:
+            entry["mount"] = np.asarray(cam.mount, dtype=float).tolist()
+        if cam.extrinsics is not None:
+            R, t = Rt_from_world_T_camera(np.asarray(cam.extrinsics, dtype=float))
+            np.savez(folder / "extrinsics.npz", R=R, t=t)
+            entry["extrinsics"] = f"{rel}/extrinsics.npz"
+        entry["detectors"] = []
+        for det in cam.detectors.values():
+            arrays = {"keypoints": np.asarray(det.keypoints, dtype=float)}
+            if det.boxes is not None:
+                arrays["boxes"] = np.asarray(det.boxes, dtype=float)
+            np.savez_compressed(folder / f"detector_{det.name}.npz", **arrays)
+            entry["detectors"].append({"name": det.name, "format": det.format, "file": f"{rel}/detector_{det.name}.npz"})
+        entry["sensors"] = []
+        for kind, arrays in cam.sensors.items():
+            (folder / "sensors").mkdir(exist_ok=True)
+            np.savez_compressed(folder / "sensors" / f"{kind}.npz", **arrays)
+            entry["sensors"].append({"kind": kind, "file": f"{rel}/sensors/{kind}.npz"})
+        doc["cameras"].append(entry)
+    gt = capture.ground_truth
+    if gt is not None:
+        (root / "ground_truth").mkdir()
+        np.savez_compressed(
+            root / "ground_truth" / "body.npz",
+            timestamps=gt.timestamps, R=gt.root[:, :3, :3], t=gt.root[:, :3, 3],
+            pose=gt.pose, shape=gt.shape, joints=gt.joints,
+        )  # fmt: skip
+        doc["ground_truth"] = {"body_model": gt.body_model, "body": "ground_truth/body.npz"}
+        if gt.cameras:
+            arrays = {}
+            for name, poses in gt.cameras.items():
+                arrays[f"{name}.R"], arrays[f"{name}.t"] = Rt_from_world_T_camera(np.asarray(poses, dtype=float))
+            np.savez_compressed(root / "ground_truth" / "cameras.npz", **arrays)
+            doc["ground_truth"]["cameras"] = "ground_truth/cameras.npz"
+    (root / MANIFEST).write_text(
+        "# mocapgraph capture; fields are documented in docs/capture-format.md.\n"
+        "# Camera poses in files are R, t world->camera (x_cam = R x_world + t), as in OpenCV.\n"
+        + tomli_w.dumps(doc),
+        encoding="utf-8",
+    )
