@@ -111,7 +111,7 @@ def edit_manifest(path, old, new):
         (lambda p: edit_manifest(p, '"openpose25"', '"halpe26"'), r"cameras.static0.detectors\[0\].format: unknown keypoint format 'halpe26'"),
         (lambda p: edit_manifest(p, 'kind = "gps"', 'kind = "lidar"'), r"cameras.uav1.sensors\[0\].kind: unknown sensor kind 'lidar'"),
         (lambda p: edit_manifest(p, "image_size = [", "image_size = [0, "), r"cameras.static0.image_size: expected \[width, height\]"),
-        (lambda p: edit_manifest(p, 'timestamps = "cameras/static0/timestamps.npy"', 'timestamps = "../elsewhere.npy"'), "points outside the capture directory"),
+        (lambda p: edit_manifest(p, 'timestamps = "cameras/static0/timestamps.npy"', 'timestamps = "../elsewhere.npy"'), "points outside the directory"),
         (lambda p: (p / "cameras/uav1/detector_hrnet.npz").unlink(), r"cameras.uav1.detectors\[0\].file: file 'cameras/uav1/detector_hrnet.npz' not found"),
         (lambda p: np.save(p / "cameras/static0/timestamps.npy", np.array([0.0, 0.1, 0.1, 0.2, 0.3, 0.4])), r"cameras/static0/timestamps.npy: timestamps: must be strictly increasing \(index 2"),
         (lambda p: np.savez(p / "cameras/static0/detector_openpose.npz", keypoints=np.zeros((5, 25, 3))), r"cameras/static0/detector_openpose.npz: keypoints: expected shape \(6, 25, 3\), got \(5, 25, 3\)"),

@@ -12,9 +12,6 @@ z forward; the convention of ``gtsam.PinholeCamera``). Files store ``R, t`` worl
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +19,15 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.data_tools.files import (
+    ArrayFiles,
+    Where,
+    check_array,
+    check_increasing,
+    check_rotations,
+    require_key,
+    write_directory_atomically,
+)
 from mocapgraph.errors import MocapgraphError
 
 FORMAT_NAME = "mocapgraph-capture"
@@ -168,95 +174,6 @@ def Rt_from_world_T_camera(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------------------------------------
-# Validation helpers: every failure names the file and the field
-
-
-class _Where:
-    """Names a place in the capture for error messages: ``file: field``."""
-
-    def __init__(self, file: str, field: str = ""):
-        self.file, self.field = file, field
-
-    def __call__(self, sub: str) -> _Where:
-        return _Where(self.file, f"{self.field}.{sub}" if self.field else sub)
-
-    def fail(self, message: str) -> CaptureError:
-        place = f"{self.file}: {self.field}" if self.field else self.file
-        return CaptureError(f"{place}: {message}")
-
-
-def _array(value, where: _Where, shape: tuple[int | None, ...], *, allow_nan: bool = False) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise where.fail("not a numeric array") from None
-    if arr.ndim != len(shape) or any(s is not None and s != g for s, g in zip(shape, arr.shape)):
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
-        raise where.fail(f"expected shape {want}, got {arr.shape}")
-    bad = np.isinf(arr) if allow_nan else ~np.isfinite(arr)
-    if np.any(bad):
-        raise where.fail(f"contains {'inf' if allow_nan else 'NaN or inf'} (first at {tuple(int(i) for i in np.argwhere(bad)[0])})")
-    return arr
-
-
-def _rotations(R: np.ndarray, where: _Where) -> None:
-    err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(initial=0.0)
-    if err > 1e-6 or np.any(np.linalg.det(R) < 0):
-        raise where.fail(f"not a rotation matrix (orthonormality error {err:.2g})")
-
-
-def _increasing(t: np.ndarray, where: _Where) -> None:
-    if t.size == 0:
-        raise where.fail("is empty")
-    if np.any(np.diff(t) <= 0):
-        i = int(np.argmax(np.diff(t) <= 0))
-        raise where.fail(f"must be strictly increasing (index {i + 1}: {t[i + 1]!r} after {t[i]!r})")
-
-
-def _key(table: dict, key: str, where: _Where, kind=None):
-    if key not in table:
-        raise where(key).fail("missing")
-    value = table[key]
-    if kind is not None and not isinstance(value, kind):
-        raise where(key).fail(f"expected {kind.__name__ if isinstance(kind, type) else ' or '.join(k.__name__ for k in kind)}, got {type(value).__name__}")
-    return value
-
-
-class _Files:
-    """Reads array files under a capture directory, naming them in every error."""
-
-    def __init__(self, root: Path):
-        self.root = root
-
-    def resolve(self, rel: str, where: _Where) -> Path:
-        path = (self.root / rel).resolve()
-        if self.root.resolve() not in path.parents:
-            raise where.fail(f"path {rel!r} points outside the capture directory")
-        if not path.is_file():
-            raise where.fail(f"file {rel!r} not found")
-        return path
-
-    def npy(self, rel: str, where: _Where) -> np.ndarray:
-        path = self.resolve(rel, where)
-        try:
-            return np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise CaptureError(f"{rel}: not a readable .npy file ({exc})") from None
-
-    def npz(self, rel: str, where: _Where, required: tuple[str, ...]) -> dict[str, np.ndarray]:
-        path = self.resolve(rel, where)
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise CaptureError(f"{rel}: not a readable .npz file ({exc})") from None
-        for key in required:
-            if key not in arrays:
-                raise CaptureError(f"{rel}: {key}: missing (the file has {', '.join(sorted(arrays)) or 'nothing'})")
-        return arrays
-
-
-# ---------------------------------------------------------------------------------------------
 # Reading
 
 
@@ -273,14 +190,14 @@ def load_capture(path: str | Path) -> Capture:
         doc = tomllib.loads(manifest.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise CaptureError(f"{manifest}: not valid TOML ({exc})") from None
-    where = _Where(MANIFEST)
+    where = Where(MANIFEST, error=CaptureError)
     if doc.get("format") != FORMAT_NAME:
         raise where("format").fail(f"expected {FORMAT_NAME!r}, got {doc.get('format')!r}")
     version = doc.get("version")
     if version != FORMAT_VERSION:
         raise where("version").fail(f"this mocapgraph reads version {FORMAT_VERSION}, the file says {version!r}")
-    files = _Files(root)
-    cams = _key(doc, "cameras", where, list)
+    files = ArrayFiles(root, CaptureError)
+    cams = require_key(doc, "cameras", where, list)
     if not cams:
         raise where("cameras").fail("a capture needs at least one camera")
     cameras = [_read_camera(c, where(f"cameras[{i}]"), files) for i, c in enumerate(cams)]
@@ -301,27 +218,27 @@ def load_capture(path: str | Path) -> Capture:
     )
 
 
-def _read_camera(doc, where: _Where, files: _Files) -> Camera:
+def _read_camera(doc, where: Where, files: ArrayFiles) -> Camera:
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
-    name = _key(doc, "name", where, str)
+    name = require_key(doc, "name", where, str)
     if not name or "/" in name or name.startswith("."):
         raise where("name").fail(f"{name!r} is not a plain file name")
-    where = _Where(where.file, f"cameras.{name}")
-    K = _array(_key(doc, "K", where, list), where("K"), (3, 3))
+    where = Where(where.file, f"cameras.{name}", CaptureError)
+    K = check_array(require_key(doc, "K", where, list), where("K"), (3, 3))
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
         raise where("K").fail("needs fx > 0, fy > 0 and a last row [0, 0, 1]")
-    size = _key(doc, "image_size", where, list)
+    size = require_key(doc, "image_size", where, list)
     if len(size) != 2 or not all(isinstance(s, int) and s > 0 for s in size):
         raise where("image_size").fail(f"expected [width, height] in pixels, got {size}")
-    distortion = _array(doc.get("distortion", [0.0] * 5), where("distortion"), (5,))
-    moving = _key(doc, "moving", where, bool)
-    rate = float(_key(doc, "frame_rate", where, (int, float)))
+    distortion = check_array(doc.get("distortion", [0.0] * 5), where("distortion"), (5,))
+    moving = require_key(doc, "moving", where, bool)
+    rate = float(require_key(doc, "frame_rate", where, (int, float)))
     if rate <= 0:
         raise where("frame_rate").fail(f"must be positive, got {rate}")
-    ts_file = _key(doc, "timestamps", where, str)
-    timestamps = _array(files.npy(ts_file, where("timestamps")), _Where(ts_file, "timestamps"), (None,))
-    _increasing(timestamps, _Where(ts_file, "timestamps"))
+    ts_file = require_key(doc, "timestamps", where, str)
+    timestamps = check_array(files.npy(ts_file, where("timestamps")), where.at(ts_file, "timestamps"), (None,))
+    check_increasing(timestamps, where.at(ts_file, "timestamps"))
     T = len(timestamps)
 
     detectors = {}
@@ -333,19 +250,19 @@ def _read_camera(doc, where: _Where, files: _Files) -> Camera:
 
     extrinsics = None
     if "extrinsics" in doc:
-        rel = _key(doc, "extrinsics", where, str)
+        rel = require_key(doc, "extrinsics", where, str)
         arrays = files.npz(rel, where("extrinsics"), ("R", "t"))
-        R = _array(arrays["R"], _Where(rel, "R"), (None, 3, 3))
-        t = _array(arrays["t"], _Where(rel, "t"), (R.shape[0], 3))
+        R = check_array(arrays["R"], where.at(rel, "R"), (None, 3, 3))
+        t = check_array(arrays["t"], where.at(rel, "t"), (R.shape[0], 3))
         if R.shape[0] not in (1, T):
-            raise _Where(rel, "R").fail(f"needs 1 (static) or {T} (one per frame) poses, got {R.shape[0]}")
-        _rotations(R, _Where(rel, "R"))
+            raise where.at(rel, "R").fail(f"needs 1 (static) or {T} (one per frame) poses, got {R.shape[0]}")
+        check_rotations(R, where.at(rel, "R"))
         extrinsics = world_T_camera_from_Rt(R, t)
 
     mount = None
     if "mount" in doc:
-        mount = _array(doc["mount"], where("mount"), (4, 4))
-        _rotations(mount[:3, :3], where("mount"))
+        mount = check_array(doc["mount"], where("mount"), (4, 4))
+        check_rotations(mount[:3, :3], where("mount"))
 
     sensors = {}
     for i, sensor in enumerate(doc.get("sensors", [])):
@@ -373,75 +290,75 @@ def _read_camera(doc, where: _Where, files: _Files) -> Camera:
     )
 
 
-def _read_detector(doc, where: _Where, files: _Files, frames: int) -> Detector:
+def _read_detector(doc, where: Where, files: ArrayFiles, frames: int) -> Detector:
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
-    name = _key(doc, "name", where, str)
-    fmt_name = _key(doc, "format", where, str)
+    name = require_key(doc, "name", where, str)
+    fmt_name = require_key(doc, "format", where, str)
     try:
         fmt = get_format(fmt_name)
     except MocapgraphError as exc:
         raise where("format").fail(str(exc)) from None
-    rel = _key(doc, "file", where, str)
+    rel = require_key(doc, "file", where, str)
     arrays = files.npz(rel, where("file"), ("keypoints",))
-    kp = _array(arrays["keypoints"], _Where(rel, "keypoints"), (frames, fmt.num_points, 3), allow_nan=True)
+    kp = check_array(arrays["keypoints"], where.at(rel, "keypoints"), (frames, fmt.num_points, 3), allow_nan=True)
     conf = kp[..., 2][np.isfinite(kp[..., 2])]
     if np.any((conf < 0) | (conf > 1)):
-        raise _Where(rel, "keypoints").fail("confidences must lie in [0, 1] (missing points are NaN, never 0)")
+        raise where.at(rel, "keypoints").fail("confidences must lie in [0, 1] (missing points are NaN, never 0)")
     boxes = None
     if "boxes" in arrays:
-        boxes = _array(arrays["boxes"], _Where(rel, "boxes"), (frames, 5), allow_nan=True)
+        boxes = check_array(arrays["boxes"], where.at(rel, "boxes"), (frames, 5), allow_nan=True)
     return Detector(name=name, format=fmt.name, keypoints=kp, boxes=boxes)
 
 
-def _read_sensor(doc, where: _Where, files: _Files) -> tuple[str, dict[str, np.ndarray]]:
+def _read_sensor(doc, where: Where, files: ArrayFiles) -> tuple[str, dict[str, np.ndarray]]:
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
-    kind = _key(doc, "kind", where, str)
+    kind = require_key(doc, "kind", where, str)
     if kind not in SENSOR_FIELDS:
         raise where("kind").fail(f"unknown sensor kind {kind!r}; known: {', '.join(SENSOR_FIELDS)}")
-    rel = _key(doc, "file", where, str)
+    rel = require_key(doc, "file", where, str)
     spec = SENSOR_FIELDS[kind]
     raw = files.npz(rel, where("file"), tuple(spec))
-    t = _array(raw["t"], _Where(rel, "t"), (None,))
-    _increasing(t, _Where(rel, "t"))
-    arrays = {k: _array(raw[k], _Where(rel, k), (len(t), *trailing)) for k, trailing in spec.items()}
+    t = check_array(raw["t"], where.at(rel, "t"), (None,))
+    check_increasing(t, where.at(rel, "t"))
+    arrays = {k: check_array(raw[k], where.at(rel, k), (len(t), *trailing)) for k, trailing in spec.items()}
     if kind == "self_pose":
-        _rotations(arrays["rotation"], _Where(rel, "rotation"))
+        check_rotations(arrays["rotation"], where.at(rel, "rotation"))
     return kind, arrays
 
 
-def _read_ground_truth(doc, where: _Where, files: _Files, cameras: list[Camera]) -> GroundTruth:
+def _read_ground_truth(doc, where: Where, files: ArrayFiles, cameras: list[Camera]) -> GroundTruth:
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
-    body_model = _key(doc, "body_model", where, str)
-    rel = _key(doc, "body", where, str)
+    body_model = require_key(doc, "body_model", where, str)
+    rel = require_key(doc, "body", where, str)
     body = files.npz(rel, where("body"), ("timestamps", "R", "t", "pose", "shape", "joints"))
-    ts = _array(body["timestamps"], _Where(rel, "timestamps"), (None,))
-    _increasing(ts, _Where(rel, "timestamps"))
+    ts = check_array(body["timestamps"], where.at(rel, "timestamps"), (None,))
+    check_increasing(ts, where.at(rel, "timestamps"))
     T = len(ts)
-    R = _array(body["R"], _Where(rel, "R"), (T, 3, 3))
-    _rotations(R, _Where(rel, "R"))
+    R = check_array(body["R"], where.at(rel, "R"), (T, 3, 3))
+    check_rotations(R, where.at(rel, "R"))
     root = np.tile(np.eye(4), (T, 1, 1))
     root[:, :3, :3] = R
-    root[:, :3, 3] = _array(body["t"], _Where(rel, "t"), (T, 3))
-    pose = _array(body["pose"], _Where(rel, "pose"), (T, 21, 3))
-    shape = _array(body["shape"], _Where(rel, "shape"), (None,))
-    joints = _array(body["joints"], _Where(rel, "joints"), (T, 22, 3))
+    root[:, :3, 3] = check_array(body["t"], where.at(rel, "t"), (T, 3))
+    pose = check_array(body["pose"], where.at(rel, "pose"), (T, 21, 3))
+    shape = check_array(body["shape"], where.at(rel, "shape"), (None,))
+    joints = check_array(body["joints"], where.at(rel, "joints"), (T, 22, 3))
     cams = {}
     if "cameras" in doc:
-        crel = _key(doc, "cameras", where, str)
+        crel = require_key(doc, "cameras", where, str)
         arrays = files.npz(crel, where("cameras"), ())
         for cam in cameras:
             if f"{cam.name}.R" not in arrays:
                 continue
-            Rc = _array(arrays[f"{cam.name}.R"], _Where(crel, f"{cam.name}.R"), (cam.num_frames, 3, 3))
-            tc = _array(arrays.get(f"{cam.name}.t"), _Where(crel, f"{cam.name}.t"), (cam.num_frames, 3))
-            _rotations(Rc, _Where(crel, f"{cam.name}.R"))
+            Rc = check_array(arrays[f"{cam.name}.R"], where.at(crel, f"{cam.name}.R"), (cam.num_frames, 3, 3))
+            tc = check_array(arrays.get(f"{cam.name}.t"), where.at(crel, f"{cam.name}.t"), (cam.num_frames, 3))
+            check_rotations(Rc, where.at(crel, f"{cam.name}.R"))
             cams[cam.name] = world_T_camera_from_Rt(Rc, tc)
         unknown = {k.split(".")[0] for k in arrays} - {c.name for c in cameras}
         if unknown:
-            raise _Where(crel).fail(f"poses for unknown cameras {sorted(unknown)}")
+            raise where.at(crel).fail(f"poses for unknown cameras {sorted(unknown)}")
     return GroundTruth(body_model, ts, root, pose, shape, joints, cams)
 
 
@@ -455,25 +372,9 @@ def write_capture(capture: Capture, path: str | Path, overwrite: bool = False) -
     Everything goes into a temporary sibling directory that replaces ``path`` only when complete.
     The capture is validated by reading the temporary copy back before it is moved into place.
     """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise CaptureError(f"{path}: already exists (pass overwrite=True / --overwrite to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
-    try:
-        _write_into(capture, tmp)
-        load_capture(tmp)  # never move an unreadable capture into place
-        if path.exists():
-            old = path.with_name(f".{path.name}.old-{os.getpid()}")
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return path
+    return write_directory_atomically(
+        Path(path), overwrite, lambda tmp: _write_into(capture, tmp), load_capture, CaptureError
+    )
 
 
 def _write_into(capture: Capture, root: Path) -> None:

@@ -1,0 +1,145 @@
+"""Reading and writing the directories of captures and results: validation that names the file
+and the field, and writes that never leave a half-written directory in place of a good one."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from mocapgraph.errors import MocapgraphError
+
+
+class Where:
+    """A place in a data directory for error messages: ``file: field``.
+
+    ``error`` is the exception type raised for this directory kind (CaptureError, ResultError).
+    """
+
+    def __init__(self, file: str, field: str = "", error: type[MocapgraphError] = MocapgraphError):
+        self.file, self.field, self.error = file, field, error
+
+    def __call__(self, sub: str) -> Where:
+        return Where(self.file, f"{self.field}.{sub}" if self.field else sub, self.error)
+
+    def at(self, file: str, field: str = "") -> Where:
+        """Another file of the same directory."""
+        return Where(file, field, self.error)
+
+    def fail(self, message: str) -> MocapgraphError:
+        place = f"{self.file}: {self.field}" if self.field else self.file
+        return self.error(f"{place}: {message}")
+
+
+def check_array(value, where: Where, shape: tuple[int | None, ...], *, allow_nan: bool = False) -> np.ndarray:
+    """``value`` as a float array of ``shape`` (None = any), finite (NaN allowed if asked)."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise where.fail("not a numeric array") from None
+    if arr.ndim != len(shape) or any(s is not None and s != g for s, g in zip(shape, arr.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise where.fail(f"expected shape {want}, got {arr.shape}")
+    bad = np.isinf(arr) if allow_nan else ~np.isfinite(arr)
+    if np.any(bad):
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise where.fail(f"contains {'inf' if allow_nan else 'NaN or inf'} (first at {first})")
+    return arr
+
+
+def check_rotations(R: np.ndarray, where: Where) -> None:
+    """Every ``(…, 3, 3)`` block is a proper rotation to 1e-6."""
+    err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(initial=0.0)
+    if err > 1e-6 or np.any(np.linalg.det(R) < 0):
+        raise where.fail(f"not a rotation matrix (orthonormality error {err:.2g})")
+
+
+def check_increasing(t: np.ndarray, where: Where) -> None:
+    """A non-empty, strictly increasing time axis."""
+    if t.size == 0:
+        raise where.fail("is empty")
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        i = int(np.argmax(steps <= 0))
+        raise where.fail(f"must be strictly increasing (index {i + 1}: {t[i + 1]!r} after {t[i]!r})")
+
+
+def require_key(table: dict, key: str, where: Where, kind=None):
+    """``table[key]``, which must exist (and be an instance of ``kind`` if given)."""
+    if key not in table:
+        raise where(key).fail("missing")
+    value = table[key]
+    if kind is not None and not isinstance(value, kind):
+        kinds = kind if isinstance(kind, tuple) else (kind,)
+        raise where(key).fail(f"expected {' or '.join(k.__name__ for k in kinds)}, got {type(value).__name__}")
+    return value
+
+
+class ArrayFiles:
+    """Reads ``.npy`` / ``.npz`` files under a directory, naming them in every error."""
+
+    def __init__(self, root: Path, error: type[MocapgraphError]):
+        self.root, self.error = root, error
+
+    def resolve(self, rel: str, where: Where) -> Path:
+        path = (self.root / rel).resolve()
+        if self.root.resolve() not in path.parents:
+            raise where.fail(f"path {rel!r} points outside the directory")
+        if not path.is_file():
+            raise where.fail(f"file {rel!r} not found")
+        return path
+
+    def npy(self, rel: str, where: Where) -> np.ndarray:
+        path = self.resolve(rel, where)
+        try:
+            return np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise self.error(f"{rel}: not a readable .npy file ({exc})") from None
+
+    def npz(self, rel: str, where: Where, required: tuple[str, ...]) -> dict[str, np.ndarray]:
+        path = self.resolve(rel, where)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except (OSError, ValueError) as exc:
+            raise self.error(f"{rel}: not a readable .npz file ({exc})") from None
+        for key in required:
+            if key not in arrays:
+                have = ", ".join(sorted(arrays)) or "nothing"
+                raise self.error(f"{rel}: {key}: missing (the file has {have})")
+        return arrays
+
+
+def write_directory_atomically(
+    path: Path,
+    overwrite: bool,
+    write: Callable[[Path], None],
+    validate: Callable[[Path], object],
+    error: type[MocapgraphError],
+) -> Path:
+    """Run ``write(tmp)`` into a temporary sibling of ``path``, ``validate(tmp)``, then swap it in.
+
+    On any failure the temporary directory is removed and whatever was at ``path`` stays.
+    """
+    if path.exists() and not overwrite:
+        raise error(f"{path}: already exists (pass overwrite=True / --overwrite to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
+    try:
+        write(tmp)
+        validate(tmp)  # never move an unreadable directory into place
+        if path.exists():
+            old = path.with_name(f".{path.name}.old-{os.getpid()}")
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
