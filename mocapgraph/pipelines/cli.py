@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from mocapgraph import __version__
 from mocapgraph.errors import MocapgraphError
 
@@ -60,6 +62,51 @@ def cmd_bench_body(args) -> None:
             print(f"{key:22s} {value}")
 
 
+def cmd_run_baseline(args) -> None:
+    from mocapgraph.pipelines.baseline import run_baseline
+
+    run_baseline(args.capture, args.out, args.detector, args.threshold_px, args.seed, args.overwrite)
+    print(f"wrote {args.out}")
+
+
+def cmd_eval(args) -> None:
+    from mocapgraph.data_tools.capture import load_capture
+    from mocapgraph.data_tools.evaluation import evaluate
+    from mocapgraph.data_tools.result import load_result
+
+    result = load_result(args.result)
+    capture_path = args.capture or Path(result.capture)
+    evaluation = evaluate(result, load_capture(capture_path))
+    if args.json:
+        print(json.dumps({"pipeline": result.pipeline, "alignment": evaluation.alignment, **evaluation.metrics}))
+        return
+    print(f"{result.pipeline} on {capture_path}: {evaluation.frames_compared} frames compared "
+          f"({evaluation.frames_without_truth} without ground truth)")
+    print(f"alignment: {evaluation.alignment}")
+    for key, value in evaluation.metrics.items():
+        print(f"  {key:28s} {value:.4f}")
+
+
+def cmd_capture_info(args) -> None:
+    from mocapgraph.data_tools.capture import load_capture
+
+    capture = load_capture(args.capture)
+    print(f"capture {capture.name}: {len(capture.cameras)} cameras, world frame: {capture.world_frame}")
+    for cam in capture.cameras:
+        span = cam.timestamps[-1] - cam.timestamps[0]
+        dets = ", ".join(
+            f"{d.name} ({d.format}, {np.isfinite(d.keypoints[..., 0]).mean():.0%} points)" for d in cam.detectors.values()
+        )
+        print(
+            f"  {cam.name:10s} {'moving' if cam.moving else 'static':6s} {cam.num_frames:5d} frames over {span:.1f} s "
+            f"at {cam.frame_rate:g} fps; {cam.image_size[0]}x{cam.image_size[1]}; "
+            f"calibrated: {'yes' if cam.extrinsics is not None else 'no'}; sensors: {', '.join(cam.sensors) or 'none'}"
+        )
+        print(f"  {'':10s} detectors: {dets or 'none'}")
+    gt = capture.ground_truth
+    print(f"ground truth: {'none' if gt is None else f'{len(gt.timestamps)} body states ({gt.body_model}), cameras: {len(gt.cameras)}'}")
+
+
 def cmd_demo(args) -> None:
     from mocapgraph.pipelines.demo import run_demo
 
@@ -94,6 +141,31 @@ def build_parser() -> argparse.ArgumentParser:
     bench_body.add_argument("--seconds", type=float, default=1.0, help="time spent per variant (default 1)")
     bench_body.add_argument("--json", action="store_true", help="print one JSON object")
     bench_body.set_defaults(func=cmd_bench_body)
+
+    capture = sub.add_parser("capture", help="inspect, import and assemble captures").add_subparsers(
+        dest="capture_command", required=True, metavar="SUBCOMMAND"
+    )
+    info_capture = capture.add_parser("info", help="cameras, detectors, sensors and ground truth of a capture")
+    info_capture.add_argument("capture", type=Path, help="capture directory")
+    info_capture.set_defaults(func=cmd_capture_info)
+
+    run = sub.add_parser("run", help="run a pipeline on a capture").add_subparsers(
+        dest="pipeline", required=True, metavar="PIPELINE"
+    )
+    baseline = run.add_parser("baseline", help="calibrated-camera triangulation (DLT + RANSAC), the reference")
+    baseline.add_argument("capture", type=Path, help="capture directory (all cameras calibrated)")
+    baseline.add_argument("--out", type=Path, required=True, help="result directory to write")
+    baseline.add_argument("--detector", help="detector name (default: the first one every camera has)")
+    baseline.add_argument("--threshold-px", type=float, default=15.0, help="RANSAC inlier threshold (default 15 px)")
+    baseline.add_argument("--seed", type=int, default=0, help="seed for RANSAC's pair sampling")
+    baseline.add_argument("--overwrite", action="store_true", help="replace an existing result")
+    baseline.set_defaults(func=cmd_run_baseline)
+
+    evaluate = sub.add_parser("eval", help="score a result against its capture's ground truth")
+    evaluate.add_argument("result", type=Path, help="result directory")
+    evaluate.add_argument("--capture", type=Path, help="capture directory (default: the one the result names)")
+    evaluate.add_argument("--json", action="store_true", help="print one JSON object")
+    evaluate.set_defaults(func=cmd_eval)
 
     demo = sub.add_parser("demo", help="pose the default body and draw it (grows with the pipelines)")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")

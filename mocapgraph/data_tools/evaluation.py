@@ -1,0 +1,132 @@
+"""``mocapgraph eval``: a result against its capture's ground truth, with the alignment each
+metric's definition calls for (``docs/metrics.md``), reported by name."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mocapgraph.body import load_body_model
+from mocapgraph.data_tools import metrics as M
+from mocapgraph.data_tools.alignment import Similarity, procrustes_trajectory, umeyama
+from mocapgraph.data_tools.capture import Capture
+from mocapgraph.data_tools.result import Result
+from mocapgraph.errors import MocapgraphError
+
+
+@dataclass
+class Evaluation:
+    """Metric values (units in the names), the alignment used, and per-frame curves.
+
+    Attributes:
+        metrics: name → value, e.g. ``mpjpe_m``, ``mcpe_m``; NaN where nothing could be compared.
+        alignment: how the result's world frame was brought onto the ground truth's.
+        frames_compared: body frames with ground truth; ``frames_without_truth`` the others.
+        per_frame: ``(T,)`` curves for reports, e.g. ``mpjpe_m``, ``timestamps``.
+    """
+
+    metrics: dict[str, float]
+    alignment: str
+    frames_compared: int
+    frames_without_truth: int
+    per_frame: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def match_times(reference: np.ndarray, query: np.ndarray, tolerance: float) -> np.ndarray:
+    """Index into sorted ``reference (N,)`` nearest to each ``query (T,)`` time; -1 if farther than ``tolerance``."""
+    right = np.clip(np.searchsorted(reference, query), 0, len(reference) - 1)
+    left = np.clip(right - 1, 0, len(reference) - 1)
+    nearest = np.where(np.abs(reference[left] - query) <= np.abs(reference[right] - query), left, right)
+    return np.where(np.abs(reference[nearest] - query) <= tolerance, nearest, -1)
+
+
+def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_joints: np.ndarray) -> tuple[Similarity, str]:
+    """The map from the result's world frame into the capture's, and its description."""
+    identity = Similarity(1.0, np.eye(3), np.zeros(3))
+    frame = result.world_frame
+    if frame == "capture":
+        return identity, "none (result is in the capture's world frame)"
+    if frame.startswith("camera:"):
+        name = frame.split(":", 1)[1]
+        poses = capture.ground_truth.cameras.get(name)
+        if poses is None:
+            raise MocapgraphError(f"result world frame {frame!r}: the capture has no ground-truth poses for camera {name!r}")
+        T = poses[0]
+        return Similarity(1.0, T[:3, :3], T[:3, 3]), f"rigid: camera {name}'s true pose at its first frame"
+    usable = np.isfinite(est_joints).all(-1)
+    if usable.sum() < 3:
+        return identity, "none possible (fewer than 3 estimated joints)"
+    fit = umeyama(est_joints[usable], gt_joints[usable], with_scale=True)
+    return fit, f"similarity (Umeyama with scale over all joints; scale {fit.scale:.3f})"
+
+
+def evaluate(result: Result, capture: Capture) -> Evaluation:
+    """All metrics that the result's contents allow, against the capture's ground truth."""
+    gt = capture.ground_truth
+    if gt is None:
+        raise MocapgraphError(f"capture {capture.name!r} has no ground truth to evaluate against")
+    step = np.median(np.diff(gt.timestamps)) if len(gt.timestamps) > 1 else 1.0
+    idx = match_times(gt.timestamps, result.timestamps, tolerance=0.5 * step)
+    have = idx >= 0
+    if not have.any():
+        raise MocapgraphError("no result timestamp lies within half a ground-truth frame of the ground truth")
+    sel = idx[have]
+    ref_joints = gt.joints[sel]
+    align, how = _alignment(result, capture, ref_joints, result.joints[have])
+    est_joints = align.apply(result.joints[have])
+    out: dict[str, float] = {}
+    per_frame: dict[str, np.ndarray] = {"timestamps": result.timestamps[have]}
+
+    if np.isfinite(est_joints).any():
+        mpjpe = M.mpjpe_m(est_joints, ref_joints)
+        out["mpjpe_m"] = float(mpjpe)
+        per_frame["mpjpe_m"] = mpjpe.per_item
+        out["pa_mpjpe_m"] = float(M.pa_mpjpe_m(est_joints, ref_joints))
+        fps = 1.0 / np.median(np.diff(result.timestamps)) if len(result.timestamps) > 3 else None
+        if fps is not None and len(est_joints) > 3:
+            out["acceleration_error_m_s2"] = float(M.acceleration_error_m_s2(est_joints, ref_joints, fps))
+
+    if result.has_body_parameters:
+        est_root = align.apply_pose(result.root[have])
+        ref_root = gt.root[sel]
+        out["ra_mpjpe_m"] = float(M.ra_mpjpe_m(est_joints, ref_joints, est_root, ref_root))
+        out["mpe_m"] = float(M.mpe_m(est_root[:, :3, 3], ref_root[:, :3, 3]))
+        out["moe_rad"] = float(M.moe_rad(est_root[:, :3, :3], ref_root[:, :3, :3]))
+        out["joint_angle_error_rad"] = float(M.joint_angle_error_rad(result.pose[have], gt.pose[sel]))
+        if result.body_model == gt.body_model == "anny":
+            body = load_body_model("anny")
+            out["mpvpe_m"] = float(M.mpvpe_m(body.rest_joints(result.shape), body.rest_joints(gt.shape)))
+
+    if result.keypoints is not None and gt.body_model == "anny":
+        body = load_body_model("anny")
+        ref_kp = body.forward(gt.shape, gt.root[sel], gt.pose[sel], keypoints=result.keypoint_format).keypoints
+        mapped = body.table(gt.shape, result.keypoint_format).mapped
+        est_kp = align.apply(result.keypoints[have])[:, mapped]
+        out["mpjpe_keypoints_m"] = float(M.mpjpe_m(est_kp, ref_kp[:, mapped]))
+        per_frame["mpjpe_keypoints_m"] = M.mpjpe_m(est_kp, ref_kp[:, mapped]).per_item
+
+    est_cams, ref_cams, moving_pos, moving_ref = [], [], [], []
+    for name, track in result.cameras.items():
+        truth = gt.cameras.get(name)
+        if truth is None:
+            continue
+        cam = capture.camera(name)
+        cidx = match_times(cam.timestamps, track.timestamps, tolerance=0.5 / cam.frame_rate)
+        ok = cidx >= 0
+        est = align.apply_pose(track.world_T_camera[ok])
+        ref = truth[cidx[ok]]
+        est_cams.append(est)
+        ref_cams.append(ref)
+        out[f"mcpe_m.{name}"] = float(M.mcpe_m(est, ref))
+        if cam.moving and len(est) >= 3:
+            fit = procrustes_trajectory(est[:, :3, 3], ref[:, :3, 3], est[:, :3, :3], ref[:, :3, :3])
+            moving_pos.append(fit.apply_pose(est))
+            moving_ref.append(ref)
+    if est_cams:
+        out["mcpe_m"] = float(M.mcpe_m(np.concatenate(est_cams), np.concatenate(ref_cams)))
+        out["mcoe_rad"] = float(M.mcoe_rad(np.concatenate(est_cams), np.concatenate(ref_cams)))
+    if moving_pos:
+        out["moving_mcpe_procrustes_m"] = float(M.mcpe_m(np.concatenate(moving_pos), np.concatenate(moving_ref)))
+        out["moving_mcoe_procrustes_rad"] = float(M.mcoe_rad(np.concatenate(moving_pos), np.concatenate(moving_ref)))
+    return Evaluation(out, how, int(have.sum()), int((~have).sum()), per_frame)

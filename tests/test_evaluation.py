@@ -1,0 +1,110 @@
+"""``eval``: metrics against ground truth after the alignment the result's world frame calls for."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import random_root
+from mocapgraph.body import load_body_model
+from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.data_tools.capture import Camera, Capture, GroundTruth
+from mocapgraph.data_tools.evaluation import evaluate, match_times
+from mocapgraph.data_tools.result import CameraTrack, Result
+from mocapgraph.errors import MocapgraphError
+
+
+@pytest.fixture(scope="module")
+def truth():
+    """A short ground-truth capture: the Anny body moving, one static and one moving camera."""
+    body = load_body_model()
+    rng = np.random.default_rng(0)
+    T = 12
+    ts = np.arange(T) / 30.0
+    root = random_root(rng, T)
+    pose = rng.normal(scale=0.3, size=(T, 21, 3))
+    shape = np.array([0.4, 0.6, 0.5, 0.3, 0.45, 0.5])
+    joints = body.forward(shape, root, pose).joints
+    K = np.array([[1000.0, 0, 640], [0, 1000, 360], [0, 0, 1]])
+    cams = [
+        Camera("fixed", K, np.zeros(5), (1280, 720), False, ts, 30.0),
+        Camera("handheld", K, np.zeros(5), (1280, 720), True, ts + 0.001, 30.0),
+    ]
+    gt = GroundTruth("anny", ts, root, pose, shape, joints,
+                     {"fixed": np.repeat(random_root(rng, 1), T, axis=0), "handheld": random_root(rng, T)})  # fmt: skip
+    return Capture("truth", cams, ground_truth=gt)
+
+
+def perfect_result(capture: Capture, world_frame: str = "capture") -> Result:
+    gt = capture.ground_truth
+    return Result(
+        pipeline="test", capture="-", world_frame=world_frame, timestamps=gt.timestamps, joints=gt.joints.copy(),
+        body_model="anny", root=gt.root.copy(), pose=gt.pose.copy(), shape=gt.shape.copy(),
+        cameras={n: CameraTrack(capture.camera(n).timestamps, p.copy()) for n, p in gt.cameras.items()},
+    )  # fmt: skip
+
+
+def test_match_times_nearest_within_tolerance():
+    ref = np.array([0.0, 0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(match_times(ref, np.array([-0.5, 0.04, 0.06, 0.31, 0.9]), 0.05), [-1, 0, 1, 3, -1])
+
+
+def test_perfect_result_scores_zero(truth):
+    ev = evaluate(perfect_result(truth), truth)
+    assert ev.alignment.startswith("none")
+    for key in ("mpjpe_m", "pa_mpjpe_m", "ra_mpjpe_m", "mpe_m", "moe_rad", "joint_angle_error_rad", "mpvpe_m", "mcpe_m", "mcoe_rad"):
+        assert ev.metrics[key] < 1e-9, key
+    assert ev.frames_compared == 12
+
+
+def test_known_offset_is_measured(truth):
+    res = perfect_result(truth)
+    res.joints = res.joints + [0.03, 0.0, 0.04]
+    res.root[:, :3, 3] += [0.03, 0.0, 0.04]
+    ev = evaluate(res, truth)
+    assert ev.metrics["mpjpe_m"] == pytest.approx(0.05)
+    assert ev.metrics["mpe_m"] == pytest.approx(0.05)
+    assert ev.metrics["ra_mpjpe_m"] < 1e-9 and ev.metrics["pa_mpjpe_m"] < 1e-9
+
+
+def similarity_moved(res: Result, scale: float, R: np.ndarray, t: np.ndarray) -> Result:
+    res.joints = scale * res.joints @ R.T + t
+    res.root[:, :3, :3] = R @ res.root[:, :3, :3]
+    res.root[:, :3, 3] = scale * res.root[:, :3, 3] @ R.T + t
+    for track in res.cameras.values():
+        track.world_T_camera[:, :3, :3] = R @ track.world_T_camera[:, :3, :3]
+        track.world_T_camera[:, :3, 3] = scale * track.world_T_camera[:, :3, 3] @ R.T + t
+    return res
+
+
+def test_ground_plane_results_are_aligned_by_a_similarity(truth):
+    R = rotvec_to_matrix(np.array([0.1, -0.2, 1.0]))
+    res = similarity_moved(perfect_result(truth, "ground_plane"), 1.3, R, np.array([2.0, -1.0, 0.5]))
+    ev = evaluate(res, truth)
+    assert ev.alignment.startswith("similarity") and "scale 0.769" in ev.alignment
+    assert ev.metrics["mpjpe_m"] < 1e-9 and ev.metrics["mcpe_m"] < 1e-9 and ev.metrics["moe_rad"] < 1e-9
+
+
+def test_camera_frame_results_use_that_cameras_true_pose(truth):
+    cam0 = truth.ground_truth.cameras["fixed"][0]
+    inverse = np.linalg.inv(cam0)
+    res = similarity_moved(perfect_result(truth, "camera:fixed"), 1.0, inverse[:3, :3], inverse[:3, 3])
+    ev = evaluate(res, truth)
+    assert "camera fixed" in ev.alignment
+    assert ev.metrics["mpjpe_m"] < 1e-9 and ev.metrics["mpe_m"] < 1e-9 and ev.metrics["mcpe_m"] < 1e-9
+
+
+def test_keypoint_results_score_their_keypoints(truth):
+    gt = truth.ground_truth
+    body = load_body_model()
+    kp = body.forward(gt.shape, gt.root, gt.pose, keypoints="coco17").keypoints
+    res = Result("baseline", "-", "capture", gt.timestamps, np.full_like(gt.joints, np.nan), keypoints=kp + [0, 0, 0.02], keypoint_format="coco17")  # fmt: skip
+    ev = evaluate(res, truth)
+    assert ev.metrics["mpjpe_keypoints_m"] == pytest.approx(0.02)
+    assert "mpjpe_m" not in ev.metrics
+
+
+def test_no_ground_truth_is_a_clear_error(truth):
+    bare = Capture("bare", truth.cameras)
+    with pytest.raises(MocapgraphError, match="has no ground truth"):
+        evaluate(perfect_result(truth), bare)
