@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.mocapgraph-installed
 BUILD_INPUTS := $(wildcard native/*.cpp native/*.h) CMakeLists.txt pyproject.toml
 
-.PHONY: install demo test test-all bench clean
+.PHONY: install demo test test-all test-video bench clean
 
 install: $(STAMP)
 
@@ -16,6 +16,22 @@ $(STAMP): $(BUILD_INPUTS)
 	$(PY) -m pip install --quiet --disable-pip-version-check "scikit-build-core>=0.10" "nanobind>=2.0"
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-build-isolation -e '.[test]'
 	@touch $(STAMP)
+
+# MediaPipe lives in its own venv layered on .venv: its declared dependencies (opencv-contrib,
+# jax, protobuf<5) would clash with .venv's; pose detection needs only these pins.
+VIDEO_VENV := .venv-video
+VIDEO_STAMP := $(VIDEO_VENV)/.mocapgraph-video-installed
+VIDEO_PINS := mediapipe==0.10.14 absl-py==2.5.1 attrs==26.1.0 flatbuffers==25.12.19 protobuf==4.25.9
+SITE := lib/python3.11/site-packages
+
+$(VIDEO_STAMP): $(STAMP)
+	@test -x $(VIDEO_VENV)/bin/python || $(PYTHON) -m venv $(VIDEO_VENV)
+	echo "import site; site.addsitedir('$(abspath $(VENV))/$(SITE)')" > $(VIDEO_VENV)/$(SITE)/zz-mocapgraph-main-venv.pth
+	$(VIDEO_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps $(VIDEO_PINS)
+	@touch $(VIDEO_STAMP)
+
+test-video: $(VIDEO_STAMP)
+	$(VIDEO_VENV)/bin/python -m pytest -q tests/test_detect_video.py tests/test_importers.py
 
 demo: install
 	$(VENV)/bin/mocapgraph demo
@@ -30,4 +46,4 @@ bench: install
 	$(VENV)/bin/mocapgraph bench body --json
 
 clean:
-	rm -rf build $(VENV) .pytest_cache
+	rm -rf build $(VENV) $(VIDEO_VENV) .pytest_cache

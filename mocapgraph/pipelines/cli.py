@@ -115,6 +115,8 @@ def cmd_demo(args) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from mocapgraph.data_tools.capture_cli import add_detect_parser, add_import_parser
+
     parser = argparse.ArgumentParser(
         prog="mocapgraph", description="Markerless multi-camera human motion capture as factor graphs."
     )
@@ -148,6 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     info_capture = capture.add_parser("info", help="cameras, detectors, sensors and ground truth of a capture")
     info_capture.add_argument("capture", type=Path, help="capture directory")
     info_capture.set_defaults(func=cmd_capture_info)
+    add_import_parser(capture)
 
     run = sub.add_parser("run", help="run a pipeline on a capture").add_subparsers(
         dest="pipeline", required=True, metavar="PIPELINE"
@@ -166,6 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--capture", type=Path, help="capture directory (default: the one the result names)")
     evaluate.add_argument("--json", action="store_true", help="print one JSON object")
     evaluate.set_defaults(func=cmd_eval)
+
+    add_detect_parser(sub)
 
     demo = sub.add_parser("demo", help="pose the default body and draw it (grows with the pipelines)")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
