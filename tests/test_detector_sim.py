@@ -11,13 +11,11 @@ from scipy.stats import spearmanr
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.data_tools.camera_model import distortion_max_radius2, in_frame_mask, project_points
 from mocapgraph.data_tools.detector_sim import (
     DETECTOR_PRESETS,
     DetectorModel,
-    distortion_max_radius2,
-    in_frame_mask,
     occluded_by_capsules,
-    project_points,
     segment_distance,
     self_occluded,
     simulate_detections,

@@ -9,11 +9,11 @@ import pytest
 
 from mocapgraph.body.rotations import matrix_to_rotvec, rotvec_to_matrix
 from mocapgraph.data_tools.capture import SENSOR_FIELDS, Camera, Capture, load_capture, write_capture
+from mocapgraph.data_tools.camera_model import project_points
 from mocapgraph.data_tools.scenarios import (
     PRESETS,
     look_at,
     multirotor_rotations,
-    project,
     scenario_cameras,
     subject_visibility,
 )
@@ -149,7 +149,7 @@ def test_look_at_is_opencv():
     assert np.allclose(R[:, 2], [0, 1, 0]) and np.allclose(R[:, 0], [1, 0, 0]) and np.allclose(R[:, 1], [0, 0, -1])
     K = np.array([[1000.0, 0, 960], [0, 1000.0, 540], [0, 0, 1]])
     points = np.array([[0, 0, 1.0], [0, 0, 2.0], [1.0, 0, 1.0]])
-    uv, z = project(np.repeat(pose[None], 3, axis=0), K, points)
+    uv, z = project_points(points, np.repeat(pose[None], 3, axis=0), K)
     assert np.allclose(uv[0], [960, 540]) and np.all(z > 0)
     assert uv[1, 1] < 540 and uv[2, 0] > 960  # world up is image up; world +x is image right here
     down = look_at([1.0, 2.0, 8.0], [1.0, 2.0, 0.0])  # along -up: still a rotation

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mocapgraph.data_tools.camera_model import in_frame_mask
 from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.data_tools.sensors import (
     GRAVITY_M_S2,
@@ -110,25 +111,10 @@ def look_at(position, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     return out
 
 
-def project(world_T_camera: np.ndarray, K: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pinhole projection (no distortion) of ``points (T, 3)`` by ``world_T_camera (T, 4, 4)``.
-
-    Returns pixels ``(T, 2)`` and camera-frame depth ``(T,)`` (z, positive in front).
-    """
-    R = world_T_camera[:, :3, :3]
-    cam = np.einsum("nji,nj->ni", R, points - world_T_camera[:, :3, 3])
-    z = cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = cam[:, :2] / z[:, None]
-    return uv * np.diag(K)[:2] + K[:2, 2], z
-
-
 def subject_visibility(camera: SimCamera, subject_times, subject_positions) -> tuple[np.ndarray, np.ndarray]:
     """Per frame of ``camera``: is the subject point in front (z > 0), and inside the image?"""
     points = _Subject(subject_times, subject_positions).at(camera.timestamps)
-    uv, z = project(camera.world_T_camera, camera.K, points)
-    w, h = camera.image_size
-    inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    _, z, inside = in_frame_mask(points, camera.world_T_camera, camera.K, camera.distortion, camera.image_size)
     return z > 0, inside
 
 
