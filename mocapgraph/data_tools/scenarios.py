@@ -36,8 +36,8 @@ VEHICLE_RATE_HZ = 100.0
 FRAME_RATE_HZ = 30.0  # synchronised presets
 
 # Calibration error of the "known" extrinsics of static cameras (per-axis std).
-CALIBRATION_ROTATION_DEG = 0.3
-CALIBRATION_TRANSLATION_M = 0.02
+CALIBRATION_ROTATION_DEG = 0.05
+CALIBRATION_TRANSLATION_M = 0.005
 
 
 @dataclass

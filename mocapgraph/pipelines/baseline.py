@@ -7,6 +7,7 @@ format, not a body, so the result's joints are NaN and ``eval`` scores its keypo
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,15 +16,25 @@ from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.data_tools.capture import load_capture
 from mocapgraph.data_tools.result import Result, write_result
 from mocapgraph.data_tools.triangulation import DEFAULT_THRESHOLD_PX, triangulate_capture
+from mocapgraph.errors import MocapgraphError
 
 
 def run_baseline(
     capture_path: Path, out: Path, detector: str | None = None, threshold_px: float = DEFAULT_THRESHOLD_PX,
     seed: int = 0, overwrite: bool = False,
 ) -> Result:  # fmt: skip
-    """Triangulate every frame of a calibrated capture and write the result at ``out``."""
+    """Triangulate every frame from the capture's calibrated cameras and write the result at ``out``."""
     capture = load_capture(capture_path)
-    tri = triangulate_capture(capture, detector=detector, threshold_px=threshold_px, seed=seed)
+    calibrated = [cam for cam in capture.cameras if cam.extrinsics is not None]
+    skipped = [cam.name for cam in capture.cameras if cam.extrinsics is None]
+    if len(calibrated) < 2:
+        raise MocapgraphError(
+            f"capture {capture.name!r}: the baseline needs at least 2 calibrated cameras, found "
+            f"{len(calibrated)} (uncalibrated: {', '.join(skipped) or 'none'})"
+        )
+    if skipped:
+        print(f"baseline: skipping uncalibrated cameras {', '.join(skipped)}")
+    tri = triangulate_capture(replace(capture, cameras=calibrated), detector=detector, threshold_px=threshold_px, seed=seed)
     T = len(tri.timestamps)
     result = Result(
         pipeline="baseline",

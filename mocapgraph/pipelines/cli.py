@@ -87,6 +87,18 @@ def cmd_eval(args) -> None:
         print(f"  {key:28s} {value:.4f}")
 
 
+def cmd_synth(args) -> None:
+    from mocapgraph.data_tools.capture import write_capture
+    from mocapgraph.data_tools.synthetic import synthesize
+
+    detectors = tuple(args.detectors.split(",")) if args.detectors else None
+    capture = synthesize(args.preset, seed=args.seed, duration_s=args.duration, motion=args.motion, detectors=detectors)
+    path = write_capture(capture, args.out, overwrite=args.overwrite)
+    frames = sum(cam.num_frames for cam in capture.cameras)
+    print(f"synthesised {capture.name}: {len(capture.cameras)} cameras, {frames} frames, motion: {capture.metadata['motion']}")
+    print(f"wrote {path}")
+
+
 def cmd_capture_info(args) -> None:
     from mocapgraph.data_tools.capture import load_capture
 
@@ -151,6 +163,18 @@ def build_parser() -> argparse.ArgumentParser:
     info_capture.add_argument("capture", type=Path, help="capture directory")
     info_capture.set_defaults(func=cmd_capture_info)
     add_import_parser(capture)
+
+    synth = sub.add_parser("synth", help="synthesise a capture with ground truth from a scenario preset")
+    synth.add_argument("preset", choices=("aircap", "airpose", "rich", "phones"), help="scenario (docs/scenarios.md)")
+    synth.add_argument("--out", type=Path, required=True, help="capture directory to write")
+    synth.add_argument("--seed", type=int, default=0, help="seed of everything random (default 0)")
+    synth.add_argument("--duration", type=float, default=10.0, help="seconds (default 10)")
+    synth.add_argument(
+        "--motion", help="walk, turn, arms, zigzag_then_act, stand, or a CMU take (cmu:cmu_02_01.npz); default per preset"
+    )
+    synth.add_argument("--detectors", help="comma-separated detector presets (default per preset)")
+    synth.add_argument("--overwrite", action="store_true", help="replace an existing capture")
+    synth.set_defaults(func=cmd_synth)
 
     run = sub.add_parser("run", help="run a pipeline on a capture").add_subparsers(
         dest="pipeline", required=True, metavar="PIPELINE"
