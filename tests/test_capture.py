@@ -129,7 +129,7 @@ def test_bad_fields_are_one_clear_error(tmp_path, mutate, message):
 
 
 def test_missing_directory(tmp_path):
-    with pytest.raises(CaptureError, match="capture directory not found"):
+    with pytest.raises(CaptureError, match="nothing: directory not found"):
         load_capture(tmp_path / "nothing")
 
 

@@ -12,7 +12,6 @@ z forward; the convention of ``gtsam.PinholeCamera``). Files store ``R, t`` worl
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from mocapgraph.data_tools.files import (
     check_increasing,
     check_rotations,
     require_key,
+    read_manifest,
     write_directory_atomically,
 )
 from mocapgraph.errors import MocapgraphError
@@ -179,23 +179,7 @@ def Rt_from_world_T_camera(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def load_capture(path: str | Path) -> Capture:
     """Read and validate a capture directory (or its ``capture.toml``)."""
-    path = Path(path)
-    root = path.parent if path.name == MANIFEST else path
-    manifest = root / MANIFEST
-    if not root.exists():
-        raise CaptureError(f"{root}: capture directory not found")
-    if not manifest.is_file():
-        raise CaptureError(f"{manifest}: missing (a capture is a directory with a {MANIFEST} manifest)")
-    try:
-        doc = tomllib.loads(manifest.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise CaptureError(f"{manifest}: not valid TOML ({exc})") from None
-    where = Where(MANIFEST, error=CaptureError)
-    if doc.get("format") != FORMAT_NAME:
-        raise where("format").fail(f"expected {FORMAT_NAME!r}, got {doc.get('format')!r}")
-    version = doc.get("version")
-    if version != FORMAT_VERSION:
-        raise where("version").fail(f"this mocapgraph reads version {FORMAT_VERSION}, the file says {version!r}")
+    root, doc, where = read_manifest(path, MANIFEST, FORMAT_NAME, FORMAT_VERSION, CaptureError)
     files = ArrayFiles(root, CaptureError)
     cams = require_key(doc, "cameras", where, list)
     if not cams:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -33,6 +34,33 @@ class Where:
     def fail(self, message: str) -> MocapgraphError:
         place = f"{self.file}: {self.field}" if self.field else self.file
         return self.error(f"{place}: {message}")
+
+
+def read_manifest(
+    path: str | Path, manifest: str, format_name: str, version: int, error: type[MocapgraphError]
+) -> tuple[Path, dict, Where]:
+    """Open a data directory (or its manifest file): its root, the parsed TOML, and a ``Where``.
+
+    Checks that the directory and manifest exist and that ``format`` and ``version`` are the ones
+    this reader knows.
+    """
+    path = Path(path)
+    root = path.parent if path.name == manifest else path
+    if not root.exists():
+        raise error(f"{root}: directory not found")
+    manifest_path = root / manifest
+    if not manifest_path.is_file():
+        raise error(f"{manifest_path}: missing (a {format_name} is a directory with a {manifest} manifest)")
+    try:
+        doc = tomllib.loads(manifest_path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise error(f"{manifest_path}: not valid TOML ({exc})") from None
+    where = Where(manifest, error=error)
+    if doc.get("format") != format_name:
+        raise where("format").fail(f"expected {format_name!r}, got {doc.get('format')!r}")
+    if doc.get("version") != version:
+        raise where("version").fail(f"this mocapgraph reads version {version}, the file says {doc.get('version')!r}")
+    return root, doc, where
 
 
 def check_array(value, where: Where, shape: tuple[int | None, ...], *, allow_nan: bool = False) -> np.ndarray:

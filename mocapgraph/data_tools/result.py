@@ -11,7 +11,6 @@ Documented in ``docs/result-format.md``; written atomically like captures.
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from mocapgraph.data_tools.files import (
     check_increasing,
     check_rotations,
     require_key,
+    read_manifest,
     write_directory_atomically,
 )
 from mocapgraph.errors import MocapgraphError
@@ -102,20 +102,7 @@ class Result:
 
 def load_result(path: str | Path) -> Result:
     """Read and validate a result directory (or its ``result.toml``)."""
-    path = Path(path)
-    root = path.parent if path.name == MANIFEST else path
-    manifest = root / MANIFEST
-    if not manifest.is_file():
-        raise ResultError(f"{manifest}: missing (a result is a directory with a {MANIFEST} manifest)")
-    try:
-        doc = tomllib.loads(manifest.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ResultError(f"{manifest}: not valid TOML ({exc})") from None
-    where = Where(MANIFEST, error=ResultError)
-    if doc.get("format") != FORMAT_NAME:
-        raise where("format").fail(f"expected {FORMAT_NAME!r}, got {doc.get('format')!r}")
-    if doc.get("version") != FORMAT_VERSION:
-        raise where("version").fail(f"this mocapgraph reads version {FORMAT_VERSION}, the file says {doc.get('version')!r}")
+    root, doc, where = read_manifest(path, MANIFEST, FORMAT_NAME, FORMAT_VERSION, ResultError)
     files = ArrayFiles(root, ResultError)
 
     body_rel = require_key(doc, "body", where, str)
