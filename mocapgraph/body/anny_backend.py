@@ -15,6 +15,7 @@ The export (``anny_export``) runs once per Anny version and lands in the user's 
 from __future__ import annotations
 
 import os
+import sys
 from functools import lru_cache
 from pathlib import Path
 
@@ -77,7 +78,7 @@ def ensure_anny_table(rebuild: bool = False) -> Path:
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
     np.savez_compressed(tmp, **arrays)
     os.replace(tmp, path)
-    print(f"mocapgraph: Anny table written to {path}", flush=True)
+    print(f"mocapgraph: Anny table written to {path}", file=sys.stderr, flush=True)
     return path
 
 

@@ -70,10 +70,10 @@ def load_anny_model():
         ) from None
 
     cache = os.environ.get("ANNY_CACHE_DIR", "~/.cache/anny")
-    print(f"mocapgraph: building the Anny body model (first time ~1 min, cache {cache}) ...", flush=True)
+    print(f"mocapgraph: building the Anny body model (first time ~1 min, cache {cache}) ...", file=sys.stderr, flush=True)
     start = time.perf_counter()
     model = anny.Anny()
-    print(f"mocapgraph: Anny model ready in {time.perf_counter() - start:.1f} s", flush=True)
+    print(f"mocapgraph: Anny model ready in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
     return model
 
 
