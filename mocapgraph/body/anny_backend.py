@@ -14,6 +14,7 @@ The export (``anny_export``) runs once per Anny version and lands in the user's 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from functools import lru_cache
@@ -73,7 +74,9 @@ def ensure_anny_table(rebuild: bool = False) -> Path:
             pass  # corrupt or stale: rebuilt below
     from mocapgraph.body.anny_export import export_anny_table
 
-    arrays = export_anny_table()
+    # Anny's skinning backend (warp) prints banners on stdout; keep stdout for our own output.
+    with contextlib.redirect_stdout(sys.stderr):
+        arrays = export_anny_table()
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
     np.savez_compressed(tmp, **arrays)

@@ -14,6 +14,7 @@ zero rotations are a T-pose as in SMPL (see ``docs/body-model.md``).
 from __future__ import annotations
 
 import os
+import sys
 import time
 from importlib.metadata import version
 
@@ -55,12 +56,6 @@ def _np(t) -> np.ndarray:
 
 def load_anny_model():
     """Anny's default model (rig ``anny``, default phenotypes), float64, with a progress message."""
-    try:
-        import warp  # Anny's optional skinning backend prints a banner per kernel unless quiet
-
-        warp.config.quiet = True
-    except ImportError:
-        pass
     try:
         import anny
     except ImportError as exc:
