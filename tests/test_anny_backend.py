@@ -161,3 +161,17 @@ def test_unreadable_table_file_names_the_file(tmp_path):
     bad.write_bytes(b"\x00garbage")
     with pytest.raises(MocapgraphError, match="broken.npz"):
         load_body_model("anny", bad)
+
+
+def test_export_chatter_stays_off_stdout(tmp_path, monkeypatch, capsys):
+    """Anny's warp backend prints banners; a first-use export must not corrupt `--json` output."""
+    monkeypatch.setenv("MOCAPGRAPH_CACHE_DIR", str(tmp_path))
+
+    def chatty_export():
+        print("Warp 1.19.0 initialized:")
+        return {"export_format": np.array(anny_backend.EXPORT_FORMAT)}
+
+    monkeypatch.setattr("mocapgraph.body.anny_export.export_anny_table", chatty_export)
+    anny_backend.ensure_anny_table()
+    out = capsys.readouterr()
+    assert out.out == "" and "Warp 1.19.0 initialized" in out.err and "Anny table written" in out.err
