@@ -1,0 +1,1 @@
+"""Building factor graphs and initial values from captures; batch (LM) and incremental solvers."""

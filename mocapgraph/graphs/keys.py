@@ -1,0 +1,44 @@
+"""The one variable-key scheme of every mocapgraph factor graph.
+
+GTSAM keys are ``gtsam.symbol(char, index)``:
+
+| variable | key | type |
+|---|---|---|
+| root pose of body state ``i`` (world_T_root) | ``root_key(i)`` = ``symbol('r', i)`` | ``gtsam.Pose3`` |
+| joint rotations of body state ``i`` (21 axis-angle vectors, radians) | ``pose_key(i)`` = ``symbol('q', i)`` | ``Vector(63)`` |
+| shape of the subject (one per sequence) | ``shape_key()`` = ``symbol('b', 0)`` | ``Vector(S)`` |
+| pose of camera ``c`` at its frame ``j`` (world_T_camera) | ``camera_key(c, j)`` = ``symbol('c', c·10⁶ + j)`` | ``gtsam.Pose3`` |
+| vehicle navigation state ``n`` (GPS/IMU fusion, per vehicle graph) | ``nav_keys(n)`` = ``symbol('x'|'v'|'i', n)`` | ``Pose3``, ``Vector3``, ``imuBias.ConstantBias`` |
+
+Body states are numbered in time order; cameras in capture order, frames in each camera's order.
+"""
+
+from __future__ import annotations
+
+import gtsam
+
+CAMERA_STRIDE = 1_000_000
+"""Frames per camera the camera-key scheme allows (a camera index is ``key index // CAMERA_STRIDE``)."""
+
+
+def root_key(i: int) -> int:
+    return gtsam.symbol("r", i)
+
+
+def pose_key(i: int) -> int:
+    return gtsam.symbol("q", i)
+
+
+def shape_key() -> int:
+    return gtsam.symbol("b", 0)
+
+
+def camera_key(camera: int, frame: int) -> int:
+    if not 0 <= frame < CAMERA_STRIDE:
+        raise ValueError(f"camera frame index {frame} outside [0, {CAMERA_STRIDE})")
+    return gtsam.symbol("c", camera * CAMERA_STRIDE + frame)
+
+
+def nav_keys(n: int) -> tuple[int, int, int]:
+    """Pose, velocity and IMU-bias keys of navigation state ``n`` in a vehicle's fusion graph."""
+    return gtsam.symbol("x", n), gtsam.symbol("v", n), gtsam.symbol("i", n)
