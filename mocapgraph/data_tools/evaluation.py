@@ -12,6 +12,7 @@ from mocapgraph.data_tools import metrics as M
 from mocapgraph.data_tools.alignment import Similarity, procrustes_trajectory, umeyama
 from mocapgraph.data_tools.capture import Capture
 from mocapgraph.data_tools.result import Result
+from mocapgraph.data_tools.timing import match_times
 from mocapgraph.errors import MocapgraphError
 
 
@@ -31,14 +32,6 @@ class Evaluation:
     frames_compared: int
     frames_without_truth: int
     per_frame: dict[str, np.ndarray] = field(default_factory=dict)
-
-
-def match_times(reference: np.ndarray, query: np.ndarray, tolerance: float) -> np.ndarray:
-    """Index into sorted ``reference (N,)`` nearest to each ``query (T,)`` time; -1 if farther than ``tolerance``."""
-    right = np.clip(np.searchsorted(reference, query), 0, len(reference) - 1)
-    left = np.clip(right - 1, 0, len(reference) - 1)
-    nearest = np.where(np.abs(reference[left] - query) <= np.abs(reference[right] - query), left, right)
-    return np.where(np.abs(reference[nearest] - query) <= tolerance, nearest, -1)
 
 
 def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_joints: np.ndarray) -> tuple[Similarity, str]:
