@@ -1,0 +1,271 @@
+"""The multi-camera reprojection factor of one body state, with per-keypoint Geman-McClure inside.
+
+One factor covers one body state (root, joint rotations, shape) seen by C cameras at once, so
+forward kinematics is shared between the cameras. Its keys are ``[root, pose, shape, *the
+refined camera keys]``; a camera can instead be fixed (a constant ``world_T_camera``, no key,
+no Jacobian).
+
+Residual: the native kernel's robust residual (:mod:`mocapgraph.factors.reprojection_kernel`)
+divided by ``noise_px``, ``2CK`` rows, camera-major. Per keypoint with pixel error ``e`` and
+weight ``w``::
+
+    L2 (scale.sigma_px = inf):  ½ w² |e|² / noise_px²
+    Geman-McClure (σ finite):   ½ w² σ²|e|² / (noise_px² (σ² + |e|²))
+
+The factor carries a unit noise model of that dimension and whitens itself: a GTSAM robust
+noise model on the whole ``2CK`` vector would saturate every factor together (see the GTSAM
+performance notes), so the kernel has to be per keypoint, inside.
+
+- ``noise_px``: standard deviation of a good detection, in pixels. It sets the weight of the
+  reprojection terms against the priors.
+- ``weights (C, K)``: per-observation multipliers of the residual, typically the detector's
+  confidences in [0, 1]; the effective standard deviation is ``noise_px / w``, and 0 drops the
+  observation. NaN pixels mark missing detections and are dropped whatever their weight.
+- **Several detectors** (keypoint formats) on the same frames: add one factor per
+  (frame group, detector), each with its detector's ``keypoint_format`` and a
+  :class:`ShapeTableCache` of that format. Their costs add up, so lower each detector's
+  ``weights`` (or raise its ``noise_px``) if they see the same joints and are correlated.
+- **Annealing**: the factor reads ``scale.sigma_px`` (a shared :class:`RobustScale`) at every
+  evaluation; change it between solver stages without rebuilding the graph.
+- **Shape**: the body table depends on the shape only. A :class:`ShapeTableCache`, shared by
+  all factors on the same shape key and format, rebuilds it only when the shape changes. The
+  shape must stay within the body's bounds (``body.shape_bounds``): a shape outside them is a
+  :class:`~mocapgraph.errors.MocapgraphError` naming the parameter, so a solver clamps the
+  shape after each step or keeps it inside with :func:`~mocapgraph.factors.priors.shape_prior_factor`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.model import BodyModel
+from mocapgraph.body.native import native_module, table_arrays
+from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.body.table import BodyTable
+from mocapgraph.errors import MocapgraphError, as_checked_array
+from mocapgraph.factors.robust import RobustScale
+
+POSE_DIM = 3 * (NUM_JOINTS - 1)
+
+
+@dataclass(frozen=True)
+class _TableEntry:
+    key: bytes
+    table: BodyTable
+    arrays: tuple[np.ndarray, ...]
+    all_mapped: bool
+
+
+class ShapeTableCache:
+    """The body table of one keypoint format for a shape vector, rebuilt only when the shape changes.
+
+    Building a table takes about 10 ms (Anny); a factor evaluation takes tens of µs. Share one
+    cache between all factors on the same shape key and keypoint format.
+
+    Shapes are compared exactly (their float64 bytes). The cache keeps the ``size`` most recently
+    used shapes: with 2, a Levenberg-Marquardt trial step that is rejected (evaluate at the trial
+    shape, then linearise again at the old one) builds no table twice.
+
+    Attributes:
+        body: the body model.
+        keypoint_format: ``"body"`` or a registered detector format name (canonical).
+        builds: how many tables were built (a counter for tests and profiling).
+    """
+
+    def __init__(self, body: BodyModel, keypoint_format: str = "body", size: int = 2):
+        if size < 1:
+            raise MocapgraphError(f"ShapeTableCache size must be >= 1, got {size}")
+        self.body = body
+        self.keypoint_format = "body" if keypoint_format == "body" else get_format(keypoint_format).name
+        self.size = int(size)
+        self.builds = 0
+        self._entries: list[_TableEntry] = []
+
+    @property
+    def num_keypoints(self) -> int:
+        """K, the number of points of the format (without building a table)."""
+        if self.keypoint_format == "body":
+            return len(self.body.keypoint_names)
+        return get_format(self.keypoint_format).num_points
+
+    def entry(self, shape) -> _TableEntry:
+        """The cached table, its native arrays and whether all its points are mapped."""
+        key = np.asarray(shape, dtype=float).tobytes()
+        for i, e in enumerate(self._entries):
+            if e.key == key:
+                if i:
+                    self._entries.insert(0, self._entries.pop(i))
+                return e
+        table = self.body.table(np.frombuffer(key), keypoints=self.keypoint_format)
+        self.builds += 1
+        e = _TableEntry(key, table, table_arrays(table), bool(np.all(table.mapped)))
+        self._entries.insert(0, e)
+        del self._entries[self.size :]
+        return e
+
+    def __call__(self, shape) -> BodyTable:
+        """The :class:`BodyTable` of ``shape`` (``(S,)``), from the cache when the shape is known."""
+        return self.entry(shape).table
+
+
+def _check_rigid(T: np.ndarray, name: str) -> np.ndarray:
+    T = as_checked_array(T, name, (4, 4))
+    R = T[:3, :3]
+    if (
+        np.abs(R.T @ R - np.eye(3)).max() > 1e-6
+        or abs(np.linalg.det(R) - 1.0) > 1e-6
+        or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-12
+    ):
+        raise MocapgraphError(
+            f"{name}: not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)"
+        )
+    return T
+
+
+class _ReprojectionError:
+    """The CustomFactor callback: reads the variables, runs the native kernel, slices the Jacobian."""
+
+    def __init__(self, cache, body_keys, refined, cameras, intrinsics, observed, weights, scale, min_depth):
+        self.cache = cache
+        self.root_key, self.pose_key, self.shape_key = body_keys
+        self.refined = refined  # [(camera index, key)]
+        self.cameras = cameras  # (C, 4, 4), fixed cameras filled in, refined ones overwritten per call
+        self.intrinsics = intrinsics
+        self.observed = observed
+        # The kernel's residual and Jacobian are linear in the weights, so whitening by noise_px
+        # is folded into them (free, where scaling the Jacobian afterwards cost ~10 µs).
+        self.weights = weights
+        self.scale = scale
+        self.min_depth = min_depth
+        self.kernel = native_module().reproject
+
+    def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
+        entry = self.cache.entry(values.atVector(self.shape_key))
+        cameras = self.cameras
+        for c, key in self.refined:
+            cameras[c] = values.atPose3(key).matrix()
+        weights = self.weights if entry.all_mapped else self.weights * entry.table.mapped[None]
+        try:
+            residual, jac, _ = self.kernel(
+                *entry.arrays,
+                values.atPose3(self.root_key).matrix(),
+                values.atVector(self.pose_key).reshape(NUM_JOINTS - 1, 3),
+                cameras,
+                self.intrinsics,
+                self.observed,
+                weights,
+                self.scale.sigma_px,
+                self.min_depth,
+                H is not None,
+            )
+        except ValueError as exc:
+            raise MocapgraphError(str(exc)) from None
+        if H is not None:
+            P = 6 + POSE_DIM + entry.table.shape_dim
+            H[0] = jac[:, 0:6]
+            H[1] = jac[:, 6 : 6 + POSE_DIM]
+            H[2] = jac[:, 6 + POSE_DIM : P]
+            for i, (c, _) in enumerate(self.refined):
+                H[3 + i] = jac[:, P + 6 * c : P + 6 * c + 6]
+        return residual
+
+
+def reprojection_factor(
+    body: BodyModel,
+    table_cache: ShapeTableCache | None,
+    root_key: int,
+    pose_key: int,
+    shape_key: int,
+    camera_keys: list[int | None],
+    fixed_cameras: list[np.ndarray | None],
+    intrinsics,
+    observed,
+    weights,
+    keypoint_format: str,
+    scale: RobustScale,
+    noise_px: float = 1.0,
+    min_depth: float = 0.05,
+) -> gtsam.CustomFactor:
+    """Reprojection of one body state's keypoints into C cameras (see the module docstring).
+
+    Args:
+        body: the body model (the same one ``table_cache`` was made for).
+        table_cache: a :class:`ShapeTableCache` of ``body`` and ``keypoint_format``, shared between
+            factors; None makes a private one.
+        root_key, pose_key, shape_key: the body state's keys (``Pose3``, ``Vector(63)``, ``Vector(S)``).
+        camera_keys: per camera, its ``Pose3`` key (world_T_camera) when the camera is refined, else None.
+        fixed_cameras: per camera, its constant ``(4, 4)`` world_T_camera when fixed, else None.
+            Exactly one of ``camera_keys[c]`` and ``fixed_cameras[c]`` is set.
+        intrinsics: ``(C, 4)`` ``fx, fy, cx, cy`` in pixels (pinhole, OpenCV axes).
+        observed: ``(C, K, 2)`` detected pixels, NaN where missing; K points of ``keypoint_format``.
+        weights: ``(C, K)`` ``>= 0`` residual multipliers (detector confidences); 0 drops a point.
+        keypoint_format: the detector's format (``"coco17"``, ...) or ``"body"``.
+        scale: the shared Geman-McClure scale, read at every evaluation (inf = L2).
+        noise_px: pixel standard deviation of a confident detection; the residual is divided by it.
+        min_depth: metres; points closer to or behind a camera contribute nothing.
+
+    Returns:
+        A ``gtsam.CustomFactor`` on ``[root_key, pose_key, shape_key, *refined camera keys]``
+        (camera order), dimension ``2CK``, unit noise model (whitened inside).
+
+    Raises:
+        MocapgraphError: for inconsistent cameras, shapes, negative weights, non-positive
+            ``noise_px`` or focal lengths, or a cache of another body or format.
+    """
+    if table_cache is None:
+        table_cache = ShapeTableCache(body, keypoint_format)
+    fmt = "body" if keypoint_format == "body" else get_format(keypoint_format).name
+    if table_cache.body is not body or table_cache.keypoint_format != fmt:
+        raise MocapgraphError(
+            f"table_cache is for {table_cache.body.name!r} / {table_cache.keypoint_format!r}, "
+            f"the factor for {body.name!r} / {fmt!r}: use one ShapeTableCache per body and keypoint format"
+        )
+    C = len(camera_keys)
+    if C == 0 or len(fixed_cameras) != C:
+        raise MocapgraphError(
+            f"camera_keys ({C}) and fixed_cameras ({len(fixed_cameras)}) need one entry per camera, "
+            "and there must be at least one camera"
+        )
+    K = table_cache.num_keypoints
+    intrinsics = as_checked_array(intrinsics, "intrinsics (fx, fy, cx, cy)", (C, 4))
+    if np.any(intrinsics[:, :2] <= 0):
+        raise MocapgraphError("intrinsics: focal lengths fx, fy must be > 0")
+    observed = as_checked_array(observed, f"observed (pixels, {fmt} points)", (C, K, 2), finite=False)
+    weights = as_checked_array(weights, "weights (detector confidences)", (C, K))
+    if np.any(weights < 0):
+        raise MocapgraphError("weights: must be >= 0")
+    noise_px = float(noise_px)
+    if not (np.isfinite(noise_px) and noise_px > 0):
+        raise MocapgraphError(f"noise_px must be a finite number > 0, got {noise_px}")
+    if not isinstance(scale, RobustScale):
+        raise MocapgraphError(f"scale must be a RobustScale, got {type(scale).__name__}")
+
+    cameras = np.tile(np.eye(4), (C, 1, 1))
+    refined = []
+    for c, (key, fixed) in enumerate(zip(camera_keys, fixed_cameras)):
+        if (key is None) == (fixed is None):
+            raise MocapgraphError(f"camera {c}: give exactly one of camera_keys[{c}] and fixed_cameras[{c}]")
+        if key is None:
+            cameras[c] = _check_rigid(fixed, f"fixed_cameras[{c}] (world_T_camera)")
+        else:
+            refined.append((c, int(key)))
+    keys = [int(root_key), int(pose_key), int(shape_key)] + [k for _, k in refined]
+    if len(set(keys)) != len(keys):
+        raise MocapgraphError("reprojection_factor: the root, pose, shape and camera keys must all differ")
+
+    error = _ReprojectionError(
+        table_cache,
+        keys[:3],
+        refined,
+        cameras,
+        np.ascontiguousarray(intrinsics),
+        np.ascontiguousarray(observed),
+        np.ascontiguousarray(weights / noise_px),
+        scale,
+        float(min_depth),
+    )
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * C * K), keys, error)
