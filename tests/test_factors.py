@@ -233,6 +233,27 @@ def test_reprojection_missing_points_have_zero_rows(scene):
         assert not np.any(b.reshape(3, 17, 2)[c, k])
 
 
+def test_reprojection_with_a_fixed_shape(scene):
+    """Holding the shape fixed drops its key and Jacobian and leaves residual and other blocks equal."""
+    fixed = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), None, scene.camera_keys, [None, scene.cameras[1], None],
+        scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, noise_px=scene.noise_px,
+        fixed_shape=scene.shape,
+    )  # fmt: skip
+    assert list(fixed.keys()) == [root_key(7), pose_key(7), camera_key(0, 7), camera_key(2, 7)]
+    np.testing.assert_array_equal(fixed.whitenedError(scene.values), scene.factor.whitenedError(scene.values))
+    full, _ = scene.factor.linearize(scene.values).jacobian()
+    held, _ = fixed.linearize(scene.values).jacobian()
+    S = scene.body.shape_dim
+    np.testing.assert_array_equal(held, np.delete(full, np.s_[69 : 69 + S], axis=1))
+    assert_jacobians(fixed, scene.values)
+    with pytest.raises(MocapgraphError, match="exactly one of shape_key and fixed_shape"):
+        reprojection_factor(
+            scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+            scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, fixed_shape=scene.shape,
+        )  # fmt: skip
+
+
 def test_reprojection_annealing_changes_the_error(scene):
     """Changing scale.sigma_px between evaluations changes the cost, without a new factor."""
     scene.scale.sigma_px = math.inf

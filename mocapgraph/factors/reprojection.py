@@ -129,9 +129,12 @@ def _check_rigid(T: np.ndarray, name: str) -> np.ndarray:
 class _ReprojectionError:
     """The CustomFactor callback: reads the variables, runs the native kernel, slices the Jacobian."""
 
-    def __init__(self, cache, body_keys, refined, cameras, intrinsics, observed, weights, scale, min_depth):
+    def __init__(self, cache, body_keys, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth):
         self.cache = cache
-        self.root_key, self.pose_key, self.shape_key = body_keys
+        self.root_key, self.pose_key = body_keys[:2]
+        self.shape_key = body_keys[2] if len(body_keys) == 3 else None
+        self.fixed_shape = fixed_shape
+        self.first_camera = len(body_keys)  # index of the first camera Jacobian in H
         self.refined = refined  # [(camera index, key)]
         self.cameras = cameras  # (C, 4, 4), fixed cameras filled in, refined ones overwritten per call
         self.intrinsics = intrinsics
@@ -144,7 +147,8 @@ class _ReprojectionError:
         self.kernel = native_module().reproject
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
-        entry = self.cache.entry(values.atVector(self.shape_key))
+        shape = self.fixed_shape if self.shape_key is None else values.atVector(self.shape_key)
+        entry = self.cache.entry(shape)
         cameras = self.cameras
         for c, key in self.refined:
             cameras[c] = values.atPose3(key).matrix()
@@ -168,9 +172,10 @@ class _ReprojectionError:
             P = 6 + POSE_DIM + entry.table.shape_dim
             H[0] = jac[:, 0:6]
             H[1] = jac[:, 6 : 6 + POSE_DIM]
-            H[2] = jac[:, 6 + POSE_DIM : P]
+            if self.shape_key is not None:
+                H[2] = jac[:, 6 + POSE_DIM : P]
             for i, (c, _) in enumerate(self.refined):
-                H[3 + i] = jac[:, P + 6 * c : P + 6 * c + 6]
+                H[self.first_camera + i] = jac[:, P + 6 * c : P + 6 * c + 6]
         return residual
 
 
@@ -179,7 +184,7 @@ def reprojection_factor(
     table_cache: ShapeTableCache | None,
     root_key: int,
     pose_key: int,
-    shape_key: int,
+    shape_key: int | None,
     camera_keys: list[int | None],
     fixed_cameras: list[np.ndarray | None],
     intrinsics,
@@ -189,6 +194,7 @@ def reprojection_factor(
     scale: RobustScale,
     noise_px: float = 1.0,
     min_depth: float = 0.05,
+    fixed_shape=None,
 ) -> gtsam.CustomFactor:
     """Reprojection of one body state's keypoints into C cameras (see the module docstring).
 
@@ -196,7 +202,9 @@ def reprojection_factor(
         body: the body model (the same one ``table_cache`` was made for).
         table_cache: a :class:`ShapeTableCache` of ``body`` and ``keypoint_format``, shared between
             factors; None makes a private one.
-        root_key, pose_key, shape_key: the body state's keys (``Pose3``, ``Vector(63)``, ``Vector(S)``).
+        root_key, pose_key, shape_key: the body state's keys (``Pose3``, ``Vector(63)``, ``Vector(S)``);
+            ``shape_key`` None holds the shape at ``fixed_shape`` (no key, no Jacobian), which
+            spares a table rebuild per step when the shape is not being estimated.
         camera_keys: per camera, its ``Pose3`` key (world_T_camera) when the camera is refined, else None.
         fixed_cameras: per camera, its constant ``(4, 4)`` world_T_camera when fixed, else None.
             Exactly one of ``camera_keys[c]`` and ``fixed_cameras[c]`` is set.
@@ -207,6 +215,7 @@ def reprojection_factor(
         scale: the shared Geman-McClure scale, read at every evaluation (inf = L2).
         noise_px: pixel standard deviation of a confident detection; the residual is divided by it.
         min_depth: metres; points closer to or behind a camera contribute nothing.
+        fixed_shape: ``(S,)`` the constant shape when ``shape_key`` is None.
 
     Returns:
         A ``gtsam.CustomFactor`` on ``[root_key, pose_key, shape_key, *refined camera keys]``
@@ -253,13 +262,19 @@ def reprojection_factor(
             cameras[c] = _check_rigid(fixed, f"fixed_cameras[{c}] (world_T_camera)")
         else:
             refined.append((c, int(key)))
-    keys = [int(root_key), int(pose_key), int(shape_key)] + [k for _, k in refined]
+    if (shape_key is None) == (fixed_shape is None):
+        raise MocapgraphError("reprojection_factor: give exactly one of shape_key and fixed_shape")
+    body_keys = [int(root_key), int(pose_key)] + ([] if shape_key is None else [int(shape_key)])
+    keys = body_keys + [k for _, k in refined]
     if len(set(keys)) != len(keys):
         raise MocapgraphError("reprojection_factor: the root, pose, shape and camera keys must all differ")
+    if fixed_shape is not None:
+        fixed_shape = as_checked_array(fixed_shape, "fixed_shape", (body.shape_dim,))
 
     error = _ReprojectionError(
         table_cache,
-        keys[:3],
+        body_keys,
+        fixed_shape,
         refined,
         cameras,
         np.ascontiguousarray(intrinsics),

@@ -9,6 +9,7 @@ GTSAM keys are ``gtsam.symbol(char, index)``:
 | shape of the subject (one per sequence) | ``shape_key()`` = ``symbol('b', 0)`` | ``Vector(S)`` |
 | pose of camera ``c`` at its frame ``j`` (world_T_camera) | ``camera_key(c, j)`` = ``symbol('c', c·10⁶ + j)`` | ``gtsam.Pose3`` |
 | vehicle navigation state ``n`` (GPS/IMU fusion, per vehicle graph) | ``nav_keys(n)`` = ``symbol('x'|'v'|'i', n)`` | ``Pose3``, ``Vector3``, ``imuBias.ConstantBias`` |
+| GPS/barometer offsets at navigation state ``n`` (slow sensor drift) | ``drift_key(n)`` = ``symbol('d', n)`` | ``Vector(4)`` |
 
 Body states are numbered in time order; cameras in capture order, frames in each camera's order.
 """
@@ -42,3 +43,8 @@ def camera_key(camera: int, frame: int) -> int:
 def nav_keys(n: int) -> tuple[int, int, int]:
     """Pose, velocity and IMU-bias keys of navigation state ``n`` in a vehicle's fusion graph."""
     return gtsam.symbol("x", n), gtsam.symbol("v", n), gtsam.symbol("i", n)
+
+
+def drift_key(n: int) -> int:
+    """GPS (3) and barometer (1) offsets at navigation state ``n`` of a vehicle's fusion graph."""
+    return gtsam.symbol("d", n)
