@@ -48,16 +48,27 @@ def test_missing_smpl_file_is_one_clear_error(tmp_path, capsys):
     assert "SMPL_NEUTRAL.npz" in err and err.count("\n") == 1
 
 
-def test_demo_without_motion_dir_uses_builtin_poses(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path / "demo"), "--motion-dir", str(tmp_path / "no-motion")]) == 0
+def test_demo_runs_aircap_and_draws_the_body(tmp_path, capsys):
+    """The demo end to end on a short capture; without a motion directory it uses built-in poses."""
+    args = ["demo", "--out", str(tmp_path / "demo"), "--motion-dir", str(tmp_path / "no-motion"), "--duration", "1.5"]
+    assert main(args) == 0
     out = capsys.readouterr().out
     assert "built-in poses: T-pose, stride, wave, squat" in out
+    assert "sequence, cameras refined      MPJPE" in out
+    report = tmp_path / "demo" / "report.html"
+    assert report.exists() and "mpjpe_m" in report.read_text()
+    for figure in ("root_trajectory.png", "error_per_frame.png"):
+        assert (tmp_path / "demo" / figure).read_bytes()[:4] == b"\x89PNG"
     png = tmp_path / "demo" / "body_poses.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     assert not list((tmp_path / "demo").glob("*.tmp*"))
 
 
-@pytest.mark.parametrize("args", [["--help"], ["body", "--help"], ["body", "info", "--help"], ["bench", "body", "--help"], ["demo", "--help"]])
+@pytest.mark.parametrize(
+    "args",
+    [["--help"], ["body", "--help"], ["body", "info", "--help"], ["bench", "body", "--help"], ["bench", "aircap", "--help"],
+     ["run", "aircap", "--help"], ["synth", "--help"], ["eval", "--help"], ["demo", "--help"]],
+)  # fmt: skip
 def test_every_subcommand_has_help(args):
     proc = subprocess.run([sys.executable, "-m", "mocapgraph.pipelines.cli", *args], capture_output=True, text=True)
     assert proc.returncode == 0 and "usage: mocapgraph" in proc.stdout

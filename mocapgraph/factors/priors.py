@@ -111,8 +111,35 @@ def camera_prior_factor(
         distance, its linearisation GTSAM's reweighted (IRLS) one.
     """
     prior = _pose3(world_T_camera_prior, "world_T_camera_prior")
+    return gtsam.PriorFactorPose3(key, prior, _robust_pose_noise(covariance, sigmas, kernel, k))
+
+
+def camera_offset_prior_factor(
+    offset_key: int,
+    key: int,
+    world_T_camera_prior,
+    covariance=None,
+    *,
+    sigmas=None,
+    kernel: str = "huber",
+    k: float | None = None,
+) -> gtsam.BetweenFactorPose3:
+    """Camera prior relative to a shared world-frame offset: ``world_T_camera ≈ O · prior``.
+
+    GPS/IMU trajectories drift slowly, so their errors at nearby frames are nearly the same; one
+    offset ``O`` (a ``Pose3`` near identity, with its own prior) per camera carries that common
+    error, and ``covariance`` is then only the frame-to-frame part. Without it, independent priors
+    on every frame would average the common error away and report it far too confidently.
+    Arguments as :func:`camera_prior_factor`.
+    """
+    prior = _pose3(world_T_camera_prior, "world_T_camera_prior")
+    return gtsam.BetweenFactorPose3(offset_key, key, prior, _robust_pose_noise(covariance, sigmas, kernel, k))
+
+
+def _robust_pose_noise(covariance, sigmas, kernel: str, k: float | None):
+    """Gaussian noise of a Pose3 residual from ``covariance (6, 6)`` or ``sigmas``, robustified."""
     if (covariance is None) == (sigmas is None):
-        raise MocapgraphError("camera_prior_factor: give exactly one of covariance (6, 6) and sigmas")
+        raise MocapgraphError("camera prior: give exactly one of covariance (6, 6) and sigmas")
     if covariance is not None:
         cov = as_checked_array(covariance, "covariance (Pose3 tangent, rotation first)", (6, 6))
         if not np.allclose(cov, cov.T) or np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
@@ -121,12 +148,12 @@ def camera_prior_factor(
     else:
         gaussian = gtsam.noiseModel.Diagonal.Sigmas(_pose3_sigmas(sigmas, "sigmas"))
     if kernel == "none":
-        return gtsam.PriorFactorPose3(key, prior, gaussian)
+        return gaussian
     if kernel not in _KERNELS:
         raise MocapgraphError(f"unknown kernel {kernel!r}; choose one of {', '.join(_KERNELS)}, none")
     estimator, default_k = _KERNELS[kernel]
     k = default_k if k is None else float(_positive(k, "k"))
-    return gtsam.PriorFactorPose3(key, prior, gtsam.noiseModel.Robust.Create(estimator.Create(k), gaussian))
+    return gtsam.noiseModel.Robust.Create(estimator.Create(k), gaussian)
 
 
 def root_smoothness_factor(key_a: int, key_b: int, dt: float, sigmas) -> gtsam.BetweenFactorPose3:

@@ -69,6 +69,18 @@ def cmd_run_baseline(args) -> None:
     print(f"wrote {args.out}")
 
 
+def cmd_run_aircap(args) -> None:
+    from mocapgraph.pipelines.aircap import AircapOptions, run_aircap_command
+
+    options = AircapOptions(
+        mode=args.mode, cameras=args.cameras, sync=args.sync, gm_sigma_px=args.gm_sigma_px,
+        detectors=tuple(args.detectors.split(",")) if args.detectors else None,
+        covariances=not args.no_covariances, progress=not args.quiet,
+    )  # fmt: skip
+    run_aircap_command(args.capture, args.out, options, overwrite=args.overwrite)
+    print(f"wrote {args.out}")
+
+
 def cmd_eval(args) -> None:
     from mocapgraph.data_tools.capture import load_capture
     from mocapgraph.data_tools.evaluation import evaluate
@@ -119,10 +131,16 @@ def cmd_capture_info(args) -> None:
     print(f"ground truth: {'none' if gt is None else f'{len(gt.timestamps)} body states ({gt.body_model}), cameras: {len(gt.cameras)}'}")
 
 
+def cmd_bench_aircap(args) -> None:
+    from mocapgraph.pipelines.bench_aircap import bench_aircap
+
+    print(json.dumps(bench_aircap(duration_s=args.duration, seed=args.seed)))
+
+
 def cmd_demo(args) -> None:
     from mocapgraph.pipelines.demo import run_demo
 
-    path = run_demo(args.out, args.motion_dir)
+    path = run_demo(args.out, args.motion_dir, duration_s=args.duration)
     print(f"wrote {path.resolve()}")
 
 
@@ -155,6 +173,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench_body.add_argument("--seconds", type=float, default=1.0, help="time spent per variant (default 1)")
     bench_body.add_argument("--json", action="store_true", help="print one JSON object")
     bench_body.set_defaults(func=cmd_bench_body)
+    bench_aircap = bench.add_parser("aircap", help="the AirCap variants on a synthetic capture, one run, one JSON object")
+    bench_aircap.add_argument("--duration", type=float, default=60.0, help="seconds of capture (default 60)")
+    bench_aircap.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    bench_aircap.add_argument("--json", action="store_true", help="print one JSON object (always on)")
+    bench_aircap.set_defaults(func=cmd_bench_aircap)
 
     capture = sub.add_parser("capture", help="inspect, import and assemble captures").add_subparsers(
         dest="capture_command", required=True, metavar="SUBCOMMAND"
@@ -188,6 +211,22 @@ def build_parser() -> argparse.ArgumentParser:
     baseline.add_argument("--overwrite", action="store_true", help="replace an existing result")
     baseline.set_defaults(func=cmd_run_baseline)
 
+    aircap = run.add_parser("aircap", help="UAV cameras with GPS/IMU: body and cameras from keypoints (AirCap)")
+    aircap.add_argument("capture", type=Path, help="capture directory")
+    aircap.add_argument("--out", type=Path, required=True, help="result directory to write")
+    aircap.add_argument("--mode", choices=("sequence", "per-frame"), default="sequence", help="joint sequence fit (default) or per frame")
+    aircap.add_argument(
+        "--cameras", choices=("refine", "prior", "fixed"), default="refine",
+        help="refine: jointly, near the offline GPS/IMU fusion (default); prior: held at that fusion; fixed: held at the onboard online estimate",
+    )  # fmt: skip
+    aircap.add_argument("--sync", choices=("states", "closest"), help="a body state per frame time (sequence default) or the thesis' closest-frame pairing (per-frame default)")
+    aircap.add_argument("--detectors", help="comma-separated detector names (default: all)")
+    aircap.add_argument("--gm-sigma-px", type=float, default=40.0, help="Geman-McClure scale in pixels (default 40)")
+    aircap.add_argument("--no-covariances", action="store_true", help="skip the marginal covariances")
+    aircap.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    aircap.add_argument("--overwrite", action="store_true", help="replace an existing result")
+    aircap.set_defaults(func=cmd_run_aircap)
+
     evaluate = sub.add_parser("eval", help="score a result against its capture's ground truth")
     evaluate.add_argument("result", type=Path, help="result directory")
     evaluate.add_argument("--capture", type=Path, help="capture directory (default: the one the result names)")
@@ -199,6 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="pose the default body and draw it (grows with the pipelines)")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
     demo.add_argument("--motion-dir", type=Path, help="CMU motion directory (default ../shared/motion/cmu_train)")
+    demo.add_argument("--duration", type=float, default=8.0, help="seconds of the synthetic aircap capture (default 8)")
     demo.set_defaults(func=cmd_demo)
     return parser
 

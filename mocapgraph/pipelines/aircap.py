@@ -1,0 +1,528 @@
+"""``mocapgraph run aircap``: body and UAV cameras from keypoints, held near their GPS/IMU priors.
+
+AirCap's pipeline as factor graphs: camera priors from the UAVs' sensors (the onboard online
+estimate, or the offline GPS/IMU re-run), a tracker that follows the person in 3D, then the body
+fitted to the keypoints of several detectors while the cameras are refined. ``mode="per-frame"``
+fits each body state alone, warm-started from the previous one, as the thesis did;
+``mode="sequence"`` starts from that and solves the whole sequence jointly with temporal
+smoothness. ``cameras`` reproduces the thesis' ablation:
+
+- ``fixed``: cameras held at the onboard online GPS/IMU estimate (the ``self_pose`` log);
+- ``prior``: cameras held at the offline GPS/IMU fusion (``graphs.vehicle_fusion``);
+- ``refine``: cameras are variables, held near the offline fusion by robust priors.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from mocapgraph.body import load_body_model
+from mocapgraph.body.model import BodyModel
+from mocapgraph.body.rotations import axis_rotation
+from mocapgraph.body.skeleton import JOINT_NAMES, NUM_JOINTS
+from mocapgraph.data_tools.capture import Capture, load_capture
+from mocapgraph.data_tools.result import CameraTrack, Result, write_result
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.factors.priors import (
+    camera_offset_prior_factor,
+    camera_prior_factor,
+    camera_smoothness_factor,
+    pose_regularizer_factor,
+    pose_smoothness_factor,
+    pose_velocity_factor,
+    root_smoothness_factor,
+    shape_prior_factor,
+)
+from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
+from mocapgraph.factors.robust import RobustScale
+from mocapgraph.graphs.frame_groups import FrameGroup, frame_groups
+from mocapgraph.graphs.keys import camera_key, camera_offset_key, pose_key, root_key, shape_key
+from mocapgraph.graphs.solver import SolverOptions, marginal_covariances, solve_staged
+
+MODES = ("sequence", "per-frame")
+CAMERA_MODES = ("refine", "prior", "fixed")
+
+
+@dataclass
+class AircapOptions:
+    """Parameters of the AirCap pipeline (units in the names; defaults measured on ``aircap`` scenes)."""
+
+    mode: str = "sequence"
+    cameras: str = "refine"
+    sync: str | None = None  # default: "closest" for per-frame (the thesis), "states" for sequence
+    detectors: tuple[str, ...] | None = None
+    gm_sigma_px: float = 40.0
+    noise_px: float = 3.0
+    pose_prior_sigma_rad: float = 0.8
+    shape_prior_sigma: float = 0.25
+    root_sigma_rad_s: float = 4.0
+    root_sigma_m_s: float = 3.0
+    # Joint-rotation smoothness: "velocity" (first order, pairs of states) keeps the linear solve's
+    # cliques at two states; "acceleration" (second order, triples) is smoother but about 4x slower.
+    pose_smoothness: str = "velocity"
+    pose_sigma_rad_s: float = 6.0
+    pose_sigma_rad_s2: float = 60.0
+    camera_sigma_rad_s: float = 1.0
+    camera_sigma_m_s: float = 2.0
+    camera_prior_kernel: str = "huber"
+    camera_prior_white_fraction: float = 0.5  # frame-to-frame share of a GPS/IMU prior's std
+    per_frame_iterations: int = 8
+    sequence_iterations: int = 30
+    covariances: bool = True
+    progress: bool = True
+
+    def check(self) -> None:
+        if self.mode not in MODES:
+            raise MocapgraphError(f"mode {self.mode!r}: choose one of {', '.join(MODES)}")
+        if self.cameras not in CAMERA_MODES:
+            raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
+
+
+@dataclass
+class _Observation:
+    """One detector's keypoints in one camera frame, ready for a reprojection factor."""
+
+    camera: int
+    frame: int
+    fmt: str
+    observed: np.ndarray  # (K, 2) pixels, NaN where missing
+    weights: np.ndarray  # (K,) confidences, 0 where missing or rejected
+
+
+@dataclass
+class _State:
+    group: FrameGroup
+    observations: list[_Observation] = field(default_factory=list)
+
+    @property
+    def num_detections(self) -> int:
+        return int(sum((o.weights > 0).sum() for o in self.observations))
+
+
+def _log(options: AircapOptions, message: str) -> None:
+    if options.progress:
+        print(f"aircap: {message}", file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Inputs: camera priors, tracker, observations
+
+
+def camera_tracks(capture: Capture, mode: str) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], list[str]]:
+    """Per usable camera: prior world_T_camera ``(T_c, 4, 4)`` and covariance ``(T_c, 6, 6)``; notes."""
+    from mocapgraph.graphs.vehicle_fusion import camera_priors
+
+    tracks, notes = camera_priors(capture, source="online" if mode == "fixed" else "fused")
+    out = {name: (track.world_T_camera, track.covariance) for name, track in tracks.items()}
+    for cam in capture.cameras:
+        if cam.name in out:
+            continue
+        if cam.extrinsics is not None:
+            poses = np.broadcast_to(cam.extrinsics, (cam.num_frames, 4, 4)).copy()
+            out[cam.name] = (poses, np.tile(np.diag([1e-6] * 3 + [1e-4] * 3), (cam.num_frames, 1, 1)))
+            notes.append(f"camera {cam.name}: no GPS/IMU; using its calibration")
+        else:
+            notes.append(f"camera {cam.name}: no GPS/IMU and no calibration; its detections are not used")
+    return out, notes
+
+
+def _observations(capture: Capture, groups, detectors, usable: set[str], inliers) -> list[_State]:
+    states = []
+    for group in groups:
+        state = _State(group)
+        for c, j in group.members:
+            cam = capture.cameras[c]
+            if cam.name not in usable:
+                continue
+            for name in detectors:
+                det = cam.detectors.get(name)
+                if det is None:
+                    continue
+                kp = det.keypoints[j]
+                weights = np.nan_to_num(kp[:, 2], nan=0.0)
+                if name in inliers.get(cam.name, {}):
+                    weights = weights * inliers[cam.name][name][j]
+                if np.any(weights > 0):
+                    state.observations.append(_Observation(c, j, det.format, kp[:, :2].copy(), weights))
+        states.append(state)
+    return states
+
+
+def neutral_pose() -> np.ndarray:
+    """``(21, 3)``: standing with the arms down (the T-pose's arms lowered by 70°)."""
+    pose = np.zeros((NUM_JOINTS - 1, 3))
+    pose[JOINT_NAMES.index("left_shoulder") - 1] = [0.0, 0.0, -1.2]
+    pose[JOINT_NAMES.index("right_shoulder") - 1] = [0.0, 0.0, 1.2]
+    return pose
+
+
+def _upright(yaw: float, position: np.ndarray) -> gtsam.Pose3:
+    """Root standing upright (body +Y up → world +Z) facing world direction ``yaw`` (radians)."""
+    stand = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # body +Z forward → world −Y
+    R = axis_rotation("z", yaw + np.pi / 2) @ stand
+    return gtsam.Pose3(gtsam.Rot3(R), np.asarray(position, dtype=float))
+
+
+# ---------------------------------------------------------------------------------------------
+# Graphs
+
+
+class _Problem:
+    """Everything the graphs of one run share: body, tables, camera priors, robust scale."""
+
+    def __init__(self, capture: Capture, body: BodyModel, options: AircapOptions, priors: dict, states: list[_State]):
+        self.capture, self.body, self.options, self.priors, self.states = capture, body, options, priors, states
+        self.scale = RobustScale(np.inf)
+        formats = {o.fmt for s in states for o in s.observations}
+        self.tables = {fmt: ShapeTableCache(body, fmt) for fmt in formats}
+        self.intrinsics = [np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) for c in capture.cameras]
+        self.refine = options.cameras == "refine"
+
+    def camera_prior(self, c: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        poses, cov = self.priors[self.capture.cameras[c].name]
+        return poses[j], cov[j]
+
+    def add_state(self, graph: gtsam.NonlinearFactorGraph, i: int, state: _State, fixed_shape=None) -> None:
+        """Reprojection factors of body state ``i`` (one per detector and camera frame) and the
+        pose regulariser; ``fixed_shape`` holds the shape constant instead of estimating it."""
+        o = self.options
+        shape = (shape_key(), None) if fixed_shape is None else (None, fixed_shape)
+        for obs in state.observations:
+            prior, _ = self.camera_prior(obs.camera, obs.frame)
+            key = camera_key(obs.camera, obs.frame) if self.refine else None
+            graph.add(
+                reprojection_factor(
+                    self.body, self.tables[obs.fmt], root_key(i), pose_key(i), shape[0], [key],
+                    [None if self.refine else prior], self.intrinsics[obs.camera][None],
+                    obs.observed[None], obs.weights[None], obs.fmt, self.scale, noise_px=o.noise_px,
+                    fixed_shape=shape[1],
+                )  # fmt: skip
+            )
+        graph.add(pose_regularizer_factor(pose_key(i), o.pose_prior_sigma_rad))
+
+    def camera_members(self, states) -> list[tuple[int, int]]:
+        return sorted({(obs.camera, obs.frame) for s in states for obs in s.observations})
+
+    def add_camera_priors(self, graph, values, members) -> None:
+        """Each refined camera frame near its GPS/IMU prior, through one offset per camera.
+
+        A prior's error is mostly the trajectory's slow drift, common to nearby frames: the offset
+        takes the prior's covariance at the camera's first frame, and each frame only
+        ``white_fraction²`` of its own (the frame-to-frame part).
+        """
+        o = self.options
+        for c in sorted({c for c, _ in members}):
+            if not values.exists(camera_offset_key(c)):
+                _, first_cov = self.camera_prior(c, 0)
+                graph.add(camera_prior_factor(camera_offset_key(c), np.eye(4), first_cov, kernel="none"))
+                values.insert(camera_offset_key(c), gtsam.Pose3())
+        for c, j in members:
+            prior, cov = self.camera_prior(c, j)
+            white = cov * o.camera_prior_white_fraction**2
+            graph.add(camera_offset_prior_factor(camera_offset_key(c), camera_key(c, j), prior, white, kernel=o.camera_prior_kernel))
+            if not values.exists(camera_key(c, j)):
+                values.insert(camera_key(c, j), gtsam.Pose3(prior))
+
+    def stages(self, iterations: int) -> list:
+        """L2 until the cost settles, then Geman-McClure: robust costs from a poor start stall.
+
+        λ starts at 1: the body's rotations make the first steps far from linear, and a small
+        initial damping spent most solves on rejected steps (39 solves against 19, measured).
+        """
+        def stage(rel_tol: float) -> SolverOptions:
+            return SolverOptions(max_iterations=iterations, relative_tolerance=rel_tol, initial_lambda=1.0)
+
+        return [
+            ("l2", lambda: setattr(self.scale, "sigma_px", np.inf), stage(1e-2)),
+            ("geman-mcclure", lambda: setattr(self.scale, "sigma_px", self.options.gm_sigma_px), stage(1e-3)),
+        ]
+
+    def project_shape(self, values: gtsam.Values) -> gtsam.Values:
+        """Clamp the shape into the body model's bounds after each accepted step."""
+        lo, hi = self.body.shape_bounds.T
+        shape = values.atVector(shape_key())
+        clamped = np.clip(shape, lo + 1e-9, hi - 1e-9)
+        if np.array_equal(clamped, shape):
+            return values
+        out = gtsam.Values(values)
+        out.update(shape_key(), clamped)
+        return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Solves
+
+
+@dataclass
+class _Estimate:
+    """Body states (and refined cameras) of a solve."""
+
+    roots: list[gtsam.Pose3]
+    poses: np.ndarray  # (N, 63)
+    shape: np.ndarray  # (S,)
+    cameras: dict[tuple[int, int], gtsam.Pose3]
+    log: list[dict]
+
+    def values(self, members_only: set | None = None) -> gtsam.Values:
+        values = gtsam.Values()
+        for i, root in enumerate(self.roots):
+            values.insert(root_key(i), root)
+            values.insert(pose_key(i), self.poses[i])
+        values.insert(shape_key(), self.shape)
+        for (c, j), pose in self.cameras.items():
+            if members_only is None or (c, j) in members_only:
+                values.insert(camera_key(c, j), pose)
+        return values
+
+
+def _read(values: gtsam.Values, i: int) -> tuple[gtsam.Pose3, np.ndarray]:
+    return values.atPose3(root_key(i)), values.atVector(pose_key(i))
+
+
+def solve_per_frame(problem: _Problem, positions: np.ndarray, yaws: np.ndarray) -> _Estimate:
+    """Each state alone, in time order, warm-started from the previous one (the thesis' mode).
+
+    ``positions (N, 3)`` and ``yaws (N,)`` are the tracker's initial guesses. The shape is held at
+    the body model's default (estimating it from one frame is ill-posed; the sequence fit does
+    it). The first state with detections tries four headings and keeps the best; states without
+    detections carry the previous estimate over (they are flagged unconstrained).
+    """
+    o = problem.options
+    shape = problem.body.default_shape.copy()
+    roots, poses, cameras, log = [], [], {}, []
+    previous: tuple[gtsam.Pose3, np.ndarray] | None = None
+    for i, state in enumerate(problem.states):
+        if not state.observations:
+            root = previous[0] if previous else _upright(yaws[i], positions[i])
+            roots.append(gtsam.Pose3(root.rotation(), positions[i]))
+            poses.append(previous[1] if previous else neutral_pose().ravel())
+            continue
+        graph = gtsam.NonlinearFactorGraph()
+        base = gtsam.Values()
+        problem.add_state(graph, i, state, fixed_shape=shape)
+        if problem.refine:
+            problem.add_camera_priors(graph, base, problem.camera_members([state]))
+        if previous is None:
+            starts = [(_upright(yaws[i] + k * np.pi / 2, positions[i]), neutral_pose().ravel()) for k in range(4)]
+        else:
+            starts = [(gtsam.Pose3(previous[0].rotation(), positions[i]), previous[1])]
+        best = None
+        for root, pose in starts:
+            values = gtsam.Values(base)
+            values.insert(root_key(i), root)
+            values.insert(pose_key(i), pose)
+            result = solve_staged(graph, values, problem.stages(o.per_frame_iterations))
+            if best is None or result.error < best.error:
+                best = result
+        previous = _read(best.values, i)
+        roots.append(previous[0])
+        poses.append(previous[1])
+        for c, j in problem.camera_members([state]) if problem.refine else []:
+            cameras[(c, j)] = best.values.atPose3(camera_key(c, j))
+        log.append({"state": i, "iterations": len(best.log), "error": float(best.error)})
+        if o.progress and i % 200 == 0:
+            _log(o, f"per-frame {i + 1}/{len(problem.states)}")
+    return _Estimate(roots, np.array(poses), shape, cameras, log)
+
+
+def resample(estimate: _Estimate, times: np.ndarray, new_times: np.ndarray) -> _Estimate:
+    """The estimate at other times: root translation and joint vectors linear, root rotation slerp."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    t = np.clip(new_times, times[0], times[-1])
+    R = Rotation.from_matrix(np.stack([r.rotation().matrix() for r in estimate.roots]))
+    rot = Slerp(times, R)(t).as_matrix() if len(times) > 1 else np.repeat(R.as_matrix(), len(t), 0)
+    trans = np.stack([np.interp(t, times, np.array([r.translation() for r in estimate.roots])[:, a]) for a in range(3)], 1)
+    poses = np.stack([np.interp(t, times, estimate.poses[:, d]) for d in range(estimate.poses.shape[1])], 1)
+    roots = [gtsam.Pose3(gtsam.Rot3(rot[i]), trans[i]) for i in range(len(t))]
+    return _Estimate(roots, poses, estimate.shape.copy(), dict(estimate.cameras), list(estimate.log))
+
+
+def sequence_graph(problem: _Problem, estimate: _Estimate) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The whole sequence: every state's factors, temporal smoothness, shape and camera priors."""
+    o = problem.options
+    graph = gtsam.NonlinearFactorGraph()
+    states = problem.states
+    times = np.array([s.group.time for s in states])
+    for i, state in enumerate(states):
+        if state.observations:
+            problem.add_state(graph, i, state)
+        else:
+            graph.add(pose_regularizer_factor(pose_key(i), o.pose_prior_sigma_rad))
+        if i > 0:
+            dt = max(times[i] - times[i - 1], 1e-3)
+            graph.add(root_smoothness_factor(root_key(i - 1), root_key(i), dt, (o.root_sigma_rad_s, o.root_sigma_m_s)))
+            if o.pose_smoothness == "velocity":
+                graph.add(pose_velocity_factor(pose_key(i - 1), pose_key(i), dt, o.pose_sigma_rad_s))
+        if i > 1 and o.pose_smoothness == "acceleration":
+            graph.add(pose_smoothness_factor([pose_key(i - 2), pose_key(i - 1), pose_key(i)], times[i - 2 : i + 1], o.pose_sigma_rad_s2))
+    graph.add(shape_prior_factor(shape_key(), problem.body.default_shape, o.shape_prior_sigma))
+    values = estimate.values(members_only=set())
+    if problem.refine:
+        members = problem.camera_members(states)
+        problem.add_camera_priors(graph, values, members)
+        for (c, j), pose in estimate.cameras.items():
+            values.update(camera_key(c, j), pose)
+        for (c0, j0), (c1, j1) in zip(members, members[1:]):
+            if c0 == c1:
+                dt = max(problem.capture.cameras[c0].timestamps[j1] - problem.capture.cameras[c0].timestamps[j0], 1e-3)
+                graph.add(camera_smoothness_factor(camera_key(c0, j0), camera_key(c1, j1), dt, o.camera_sigma_rad_s, o.camera_sigma_m_s))
+    return graph, values
+
+
+def solve_sequence(problem: _Problem, start: _Estimate) -> tuple[_Estimate, gtsam.NonlinearFactorGraph, gtsam.Values]:
+    graph, values = sequence_graph(problem, start)
+    o = problem.options
+
+    def progress(row):
+        _log(o, f"sequence {row.get('stage')} iteration {row.get('iteration')}: cost {row.get('cost_after', row.get('cost', 0.0)):.4g}")
+
+    result = solve_staged(
+        graph, values, problem.stages(o.sequence_iterations), project=problem.project_shape,
+        on_iteration=progress if o.progress else None,
+    )  # fmt: skip
+    v = result.values
+    n = len(problem.states)
+    roots = [v.atPose3(root_key(i)) for i in range(n)]
+    poses = np.array([v.atVector(pose_key(i)) for i in range(n)])
+    cameras = {m: v.atPose3(camera_key(*m)) for m in problem.camera_members(problem.states)} if problem.refine else {}
+    return _Estimate(roots, poses, v.atVector(shape_key()), cameras, list(result.log)), graph, v
+
+
+# ---------------------------------------------------------------------------------------------
+# Uncertainty and output
+
+
+def joint_covariances(problem: _Problem, graph, values: gtsam.Values, estimate: _Estimate) -> tuple[np.ndarray, np.ndarray]:
+    """Per state: joints ``(N, 22, 3, 3)`` (m²) pushed through the forward-kinematics Jacobian,
+    and root ``(N, 6, 6)`` (Pose3 tangent, rotation first).
+
+    The joint marginal of (root, pose) of each state is exact; the shape, shared by all states, is
+    added as an independent term. Its cross-covariance with one state is neglected: querying it
+    costs about 100x more (0.4 s against 4 ms per state, measured), and the shape is pinned by the
+    whole sequence.
+    """
+    marginals = gtsam.Marginals(graph.linearize(values), values)
+    n = len(problem.states)
+    S = problem.body.shape_dim
+    shape_cov = marginals.marginalCovariance(shape_key())
+    joints_cov = np.full((n, NUM_JOINTS, 3, 3), np.nan)
+    root_cov = np.full((n, 6, 6), np.nan)
+    fk = problem.body.forward(
+        estimate.shape, np.stack([r.matrix() for r in estimate.roots]), estimate.poses.reshape(n, -1, 3), jacobians=True
+    )
+    diag = np.arange(NUM_JOINTS)
+    for i in range(n):
+        keys = [root_key(i), pose_key(i)]
+        joint = marginals.jointMarginalCovariance(gtsam.KeyVector(keys))
+        cov = np.zeros((69 + S, 69 + S))
+        cov[:69, :69] = np.block([[joint.at(a, b) for b in keys] for a in keys])
+        cov[69:, 69:] = shape_cov
+        J = fk.d_joints[i].reshape(NUM_JOINTS * 3, 69 + S)
+        joints_cov[i] = (J @ cov @ J.T).reshape(NUM_JOINTS, 3, NUM_JOINTS, 3)[diag, :, diag, :]
+        root_cov[i] = cov[:6, :6]
+    return joints_cov, root_cov
+
+
+def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_label: str = "") -> Result:
+    """Run the pipeline on a loaded capture and return the result (nothing written)."""
+    from mocapgraph.data_tools.tracker import track_person
+
+    options = options or AircapOptions()
+    options.check()
+    start = time.perf_counter()
+    body = load_body_model()
+    detectors = options.detectors or tuple(dict.fromkeys(n for cam in capture.cameras for n in cam.detectors))
+    if not detectors:
+        raise MocapgraphError(f"capture {capture.name!r}: no camera has detections")
+
+    priors, notes = camera_tracks(capture, options.cameras)
+    for note in notes:
+        _log(options, note)
+    if not priors:
+        raise MocapgraphError(f"capture {capture.name!r}: no camera has a pose prior (GPS/IMU or calibration)")
+    camera_poses = {name: poses for name, (poses, _) in priors.items()}
+    track = track_person(capture, camera_poses)
+    inliers: dict[str, dict[str, np.ndarray]] = {}
+    for name in detectors:
+        having = {n: p for n, p in camera_poses.items() if name in capture.camera(n).detectors}
+        for cam_name, mask in track.inlier_detections(capture, having, detector=name).items():
+            inliers.setdefault(cam_name, {})[name] = mask
+
+    def problem_for(sync: str) -> tuple[_Problem, np.ndarray]:
+        groups = frame_groups(capture, sync)
+        states = _observations(capture, groups, detectors, set(priors), inliers)
+        if not any(s.observations for s in states):
+            raise MocapgraphError(f"capture {capture.name!r}: no usable detections in any camera")
+        return _Problem(capture, body, options, priors, states), np.array([g.time for g in groups])
+
+    # The per-frame pass pairs the cameras' closest frames (several views per state, as the thesis
+    # did); the sequence fit then starts from it, resampled onto its own states.
+    per_frame_sync = options.sync if options.mode == "per-frame" and options.sync else "closest"
+    problem, times = problem_for(per_frame_sync)
+    positions, _ = track.at(times)
+    velocity = track.velocity_at(times)
+    yaws = np.unwrap(np.arctan2(velocity[:, 1], velocity[:, 0]))
+    _log(options, f"per-frame: {len(times)} body states, cameras {options.cameras}")
+    estimate = solve_per_frame(problem, positions, yaws)
+    per_frame_seconds = time.perf_counter() - start
+    graph = values = None
+    if options.mode == "sequence":
+        pf_times = times
+        problem, times = problem_for(options.sync or "states")
+        _log(options, f"sequence: {len(times)} body states")
+        estimate, graph, values = solve_sequence(problem, resample(estimate, pf_times, times))
+    seconds = time.perf_counter() - start
+    states = problem.states
+
+    n = len(states)
+    root = np.stack([r.matrix() for r in estimate.roots])
+    pose = estimate.poses.reshape(n, NUM_JOINTS - 1, 3)
+    fk = body.forward(estimate.shape, root, pose)
+    first_format = next(o.fmt for s in states for o in s.observations)
+    keypoints = body.forward(estimate.shape, root, pose, keypoints=first_format).keypoints
+    detections = np.array([s.num_detections for s in states])
+    result = Result(
+        pipeline="aircap", capture=capture_label or str(capture.path or capture.name), world_frame="capture",
+        timestamps=times, joints=fk.joints, body_model=body.name, root=root, pose=pose, shape=estimate.shape,
+        keypoints=keypoints, keypoint_format=first_format,
+        flags={"num_detections": detections, "unconstrained": detections == 0},
+        log=estimate.log, parameters={k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None},
+    )  # fmt: skip
+    for c, cam in enumerate(capture.cameras):
+        if cam.name not in priors:
+            continue
+        poses = priors[cam.name][0].copy()
+        for (cc, j), p in estimate.cameras.items():
+            if cc == c:
+                poses[j] = p.matrix()
+        result.cameras[cam.name] = CameraTrack(cam.timestamps, poses)
+    if options.covariances:
+        if graph is None:
+            graph, values = sequence_graph(problem, estimate)
+        result.covariances["joints"], result.covariances["root"] = joint_covariances(problem, graph, values, estimate)
+    result.parameters["seconds"] = round(seconds, 3)
+    result.parameters["per_frame_seconds"] = round(per_frame_seconds, 3)
+    result.parameters["notes"] = notes
+    return result
+
+
+def run_aircap_command(capture_path: Path, out: Path, options: AircapOptions, overwrite: bool = False) -> Result:
+    """``mocapgraph run aircap``: load, run, write, and print a short summary."""
+    capture = load_capture(capture_path)
+    result = run_aircap(capture, options, capture_label=str(capture_path))
+    write_result(result, out, overwrite=overwrite)
+    flags = result.flags
+    n = len(result.timestamps)
+    print(
+        f"aircap ({options.mode}, cameras {options.cameras}): {n} body states from {len(result.cameras)} cameras "
+        f"in {result.parameters['seconds']:.1f} s ({n / max(result.parameters['seconds'], 1e-9):.0f} states/s); "
+        f"{int(flags['unconstrained'].sum())} states without detections"
+    )
+    return result
