@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import cv2
@@ -18,7 +17,6 @@ from mocapgraph.data_tools.importers import (
     read_calibration,
     read_openpose_json_folder,
 )
-from mocapgraph.errors import MocapgraphError
 
 K1 = np.array([[1210.5, 0.0, 962.25], [0.0, 1205.0, 541.5], [0.0, 0.0, 1.0]])
 DIST1 = np.array([-0.11, 0.052, 0.0007, -0.0012, 0.003])

@@ -27,6 +27,7 @@ from mocapgraph.data_tools.files import (
     require_key,
     read_manifest,
     write_directory_atomically,
+    write_manifest,
 )
 from mocapgraph.errors import MocapgraphError
 
@@ -362,8 +363,6 @@ def write_capture(capture: Capture, path: str | Path, overwrite: bool = False) -
 
 
 def _write_into(capture: Capture, root: Path) -> None:
-    import tomli_w
-
     doc: dict = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
@@ -422,9 +421,4 @@ def _write_into(capture: Capture, root: Path) -> None:
                 arrays[f"{name}.R"], arrays[f"{name}.t"] = Rt_from_world_T_camera(np.asarray(poses, dtype=float))
             np.savez_compressed(root / "ground_truth" / "cameras.npz", **arrays)
             doc["ground_truth"]["cameras"] = "ground_truth/cameras.npz"
-    (root / MANIFEST).write_text(
-        "# mocapgraph capture; fields are documented in docs/capture-format.md.\n"
-        "# Camera poses in files are R, t world->camera (x_cam = R x_world + t), as in OpenCV.\n"
-        + tomli_w.dumps(doc),
-        encoding="utf-8",
-    )
+    write_manifest(root / MANIFEST, "capture", "docs/capture-format.md", doc)

@@ -142,6 +142,18 @@ class ArrayFiles:
         return arrays
 
 
+def write_manifest(path: Path, kind: str, doc_page: str, doc: dict) -> None:
+    """Write a TOML manifest headed by a comment naming its documentation and pose convention."""
+    import tomli_w
+
+    path.write_text(
+        f"# mocapgraph {kind}; fields are documented in {doc_page}.\n"
+        "# Camera poses in files are R, t world->camera (x_cam = R x_world + t), as in OpenCV.\n"
+        + tomli_w.dumps(doc),
+        encoding="utf-8",
+    )
+
+
 def write_directory_atomically(
     path: Path,
     overwrite: bool,

@@ -29,6 +29,7 @@ from mocapgraph.data_tools.files import (
     require_key,
     read_manifest,
     write_directory_atomically,
+    write_manifest,
 )
 from mocapgraph.errors import MocapgraphError
 
@@ -189,8 +190,6 @@ def write_result(result: Result, path: str | Path, overwrite: bool = False) -> P
 
 
 def _write_into(result: Result, root: Path) -> None:
-    import tomli_w
-
     doc: dict = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
@@ -223,9 +222,4 @@ def _write_into(result: Result, root: Path) -> None:
         (root / "log.json").write_text(json.dumps(result.log, indent=1), encoding="utf-8")
         doc["log"] = "log.json"
     doc["parameters"] = result.parameters
-    (root / MANIFEST).write_text(
-        "# mocapgraph result; fields are documented in docs/result-format.md.\n"
-        "# Camera poses in files are R, t world->camera (x_cam = R x_world + t), as in OpenCV.\n"
-        + tomli_w.dumps(doc),
-        encoding="utf-8",
-    )
+    write_manifest(root / MANIFEST, "result", "docs/result-format.md", doc)

@@ -43,7 +43,7 @@ from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import FrameGroup, frame_groups
 from mocapgraph.graphs.keys import camera_key, camera_offset_key, pose_key, root_key, shape_key
-from mocapgraph.graphs.solver import SolverOptions, marginal_covariances, solve_staged
+from mocapgraph.graphs.solver import SolverOptions, solve_staged
 
 MODES = ("sequence", "per-frame")
 CAMERA_MODES = ("refine", "prior", "fixed")
