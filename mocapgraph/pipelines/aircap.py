@@ -269,15 +269,13 @@ class _Estimate:
     cameras: dict[tuple[int, int], gtsam.Pose3]
     log: list[dict]
 
-    def values(self, members_only: set | None = None) -> gtsam.Values:
+    def body_values(self) -> gtsam.Values:
+        """The body variables (roots, joint rotations, shape); cameras are added by their priors."""
         values = gtsam.Values()
         for i, root in enumerate(self.roots):
             values.insert(root_key(i), root)
             values.insert(pose_key(i), self.poses[i])
         values.insert(shape_key(), self.shape)
-        for (c, j), pose in self.cameras.items():
-            if members_only is None or (c, j) in members_only:
-                values.insert(camera_key(c, j), pose)
         return values
 
 
@@ -363,7 +361,7 @@ def sequence_graph(problem: _Problem, estimate: _Estimate) -> tuple[gtsam.Nonlin
         if i > 1 and o.pose_smoothness == "acceleration":
             graph.add(pose_smoothness_factor([pose_key(i - 2), pose_key(i - 1), pose_key(i)], times[i - 2 : i + 1], o.pose_sigma_rad_s2))
     graph.add(shape_prior_factor(shape_key(), problem.body.default_shape, o.shape_prior_sigma))
-    values = estimate.values(members_only=set())
+    values = estimate.body_values()
     if problem.refine:
         members = problem.camera_members(states)
         problem.add_camera_priors(graph, values, members)
