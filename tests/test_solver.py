@@ -293,6 +293,53 @@ def test_project_that_raises_cost_is_never_accepted():
     assert result.values.atVector(x_key)[0] == 0.0
 
 
+def clamp_x(x_key, lo=0.0, hi=2.0):
+    def clamp(values):
+        projected = gtsam.Values(values)
+        projected.update(x_key, np.clip(values.atVector(x_key), lo, hi))
+        return projected
+
+    return clamp
+
+
+def test_active_set_is_kept_while_the_bound_stays_active():
+    """x rests on its bound from the first step: later tries hold it from their first solve
+    (no extra solve), and the solution is the constrained optimum."""
+    graph, initial, x_key, y_key = bounded_problem()
+    initial.update(y_key, np.array([-3.0]))  # y needs several damped steps to reach 1.5
+    result = levenberg_marquardt(graph, initial, SolverOptions(initial_lambda=10.0, **TIGHT), project=clamp_x(x_key))
+    assert result.values.atVector(x_key)[0] == pytest.approx(2.0, abs=1e-9)
+    assert result.values.atVector(y_key)[0] == pytest.approx(1.5, abs=1e-6)
+    extra = [row["active_set_solves"] for row in result.log]
+    first = next(i for i, n in enumerate(extra) if n)  # the try that found the bound
+    assert extra[first] == 1 and len(extra) - first >= 3
+    assert not any(extra[first + 1 :])  # later tries held it from their first solve
+
+
+def test_active_set_releases_a_bound_the_optimum_leaves():
+    """x is driven onto its upper bound by the first damped steps, but the optimum is interior
+    (x = y ≈ -4.9): the held bound is released when the model's gradient points inside."""
+    x_key, y_key = gtsam.symbol("x", 0), gtsam.symbol("y", 0)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorVector(x_key, np.array([5.0]), gtsam.noiseModel.Unit.Create(1)))
+    graph.add(gtsam.PriorFactorVector(y_key, np.array([-5.0]), gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+    graph.add(gtsam.BetweenFactorVector(x_key, y_key, np.array([0.0]), gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+    initial = gtsam.Values()
+    initial.insert(x_key, np.array([1.9]))
+    initial.insert(y_key, np.array([10.0]))
+    result = levenberg_marquardt(
+        graph, initial, SolverOptions(initial_lambda=1e3, **TIGHT), project=clamp_x(x_key, -10.0, 2.0)
+    )
+    # Unconstrained optimum of (x-5)² + 100(y+5)² + 100(y-x)²: solve the 2x2 normal equations.
+    H = np.array([[1.0 + 100.0, -100.0], [-100.0, 200.0]])
+    want = np.linalg.solve(H, [5.0, -500.0])
+    assert want[0] < 2.0
+    seen_x = [row for row in result.log if row["accepted"]]
+    assert any(row["active_set_solves"] > 0 for row in seen_x)  # the bound was active on the way
+    assert result.values.atVector(x_key)[0] == pytest.approx(want[0], abs=1e-6)
+    assert result.values.atVector(y_key)[0] == pytest.approx(want[1], abs=1e-6)
+
+
 # (e) marginal covariances
 def test_marginal_covariances_match_gtsam_marginals():
     graph, initial = pose_chain(n=15, seed=7)

@@ -52,6 +52,10 @@ _GRID_PER_DECADE = 10
 _DAMPING_CACHE_SIZE = 16
 _ORDERINGS = ("colamd", "time", "natural", "metis")
 _ACTIVE_SET_ROUNDS = 3
+_HOLD_WEIGHT = 1e8
+"""Whitened weight of a row holding a clamped component: it moves by ~1e-15 of its target. Hard
+``noiseModel.Constrained`` rows force QR in their clique, which fails (``IndeterminateSystemException``)
+when a child clique passes up a semi-definite Hessian, as the body-and-camera graphs do."""
 _MAX_STREAK = 4
 _CURVATURE_JUMP = 1.0
 """After a rejected step, λ ≥ this × the curvature along the step (about halving that step)."""
@@ -308,11 +312,18 @@ class _Projection:
 
     A plain "step, then clamp" stalls at a bound: the step of the other variables was solved
     assuming the clamped components move, so the clamped point gains little and LM keeps raising
-    λ. Here the components the hook changed are held at their projected values (hard
-    ``Constrained`` rows on just those components) and the damped system is solved again, so
-    the free variables take their best step given the clamp. Up to ``_ACTIVE_SET_ROUNDS`` rounds
-    add newly clamped components. Which components moved is read from the tangent step
-    ``localCoordinates(projected) − δ``, so the hook stays free to act on any variable.
+    λ. Here the components the hook changed are held at their projected values (stiff rows of
+    weight ``_HOLD_WEIGHT`` on just those components) and the damped system is solved again, so
+    the free variables take their best step given the clamp. Which components moved is read
+    from the tangent step ``localCoordinates(projected) − δ``, so the hook stays free to act on
+    any variable.
+
+    The active set is kept from one try to the next: a component that sat at a bound after the
+    last accepted step is held there from the first solve of the next try, which saves a solve
+    per try while a bound stays active (every try of a long fit, when a shape parameter rests on
+    its limit). A held component is released when the damped model's gradient at the solution
+    points into the feasible set (the hook leaves a small move that way alone). Up to
+    ``_ACTIVE_SET_ROUNDS`` extra solves per try add or release components.
     """
 
     def __init__(self, project: Callable[[gtsam.Values], gtsam.Values | None], values: gtsam.Values) -> None:
@@ -322,6 +333,9 @@ class _Projection:
         sizes = np.array([dims[key] for key in self.keys], dtype=int)
         self.offsets = np.concatenate(([0], np.cumsum(sizes)))
         self.owner = np.repeat(np.arange(len(self.keys)), sizes)
+        self.units: dict[int, gtsam.noiseModel.Base] = {}
+        self.held: dict[int, float] = {}  # flat index -> tangent value it is held at, from `base`
+        self.base: gtsam.Values | None = None
 
     def apply(self, values: gtsam.Values, delta: gtsam.VectorValues) -> tuple[gtsam.Values, gtsam.VectorValues]:
         candidate = values.retract(delta)
@@ -329,43 +343,75 @@ class _Projection:
         candidate = candidate if projected is None else projected
         return candidate, values.localCoordinates(candidate)
 
+    def flat(self, vector: gtsam.VectorValues) -> np.ndarray | None:
+        try:
+            return vector.vector(self.keys)
+        except (RuntimeError, IndexError, ValueError):  # lacks a key (Gauss-Newton, unused key)
+            return None
+
     def moved(self, delta: gtsam.VectorValues, step: gtsam.VectorValues) -> np.ndarray:
         """Flat indices (in sorted-key layout) of the tangent components the hook changed."""
-        try:
-            wanted, taken = delta.vector(self.keys), step.vector(self.keys)
-        except (RuntimeError, IndexError, ValueError):  # delta lacks a key (Gauss-Newton, unused key)
+        wanted, taken = self.flat(delta), self.flat(step)
+        if wanted is None or taken is None:
             return np.zeros(0, dtype=int)
         return np.flatnonzero(np.abs(taken - wanted) > 1e-9 * (1.0 + np.abs(wanted)))
 
-    def step(self, values, delta, system, ordering) -> tuple[gtsam.Values, gtsam.VectorValues, int]:
-        """(projected candidate, its tangent step, extra solves)."""
-        candidate, step = self.apply(values, delta)
-        held: dict[int, float] = {}  # flat index -> tangent value it is held at
+    def unit(self, dim: int) -> gtsam.noiseModel.Base:
+        return self.units.setdefault(dim, gtsam.noiseModel.Unit.Create(dim))
+
+    def with_holds(self, system: gtsam.GaussianFactorGraph, held: dict[int, float]) -> gtsam.GaussianFactorGraph:
+        if not held:
+            return system
+        constrained = gtsam.GaussianFactorGraph()
+        constrained.push_back(system)  # Cholesky handles a stiff diagonal row: it is invariant to diagonal scaling
+        indices = np.array(sorted(held))
+        for owner in np.unique(self.owner[indices]):
+            rows = indices[self.owner[indices] == owner]
+            key, dim = self.keys[owner], int(self.offsets[owner + 1] - self.offsets[owner])
+            select = np.eye(dim)[rows - self.offsets[owner]]
+            target = np.array([held[int(i)] for i in rows])
+            constrained.push_back(gtsam.JacobianFactor(key, _HOLD_WEIGHT * select, _HOLD_WEIGHT * target, self.unit(len(rows))))
+        return constrained
+
+    def releasable(self, values, system, delta, held) -> list[int]:
+        """Held components whose model gradient at ``delta`` points into the feasible set."""
+        gradient, flat = self.flat(system.gradient(delta)), self.flat(delta)
+        if gradient is None or flat is None:
+            return []
+        indices = np.array(sorted(held))
+        probe = flat.copy()
+        probe[indices] -= 1e-6 * (1.0 + np.abs(flat[indices])) * np.sign(gradient[indices])
+        probe_delta = gtsam.VectorValues()
+        for key, a, b in zip(self.keys, self.offsets[:-1], self.offsets[1:]):
+            probe_delta.insert(key, probe[a:b])
+        clamped = set(self.moved(probe_delta, self.apply(values, probe_delta)[1]).tolist())
+        return [int(i) for i in indices if gradient[i] != 0.0 and i not in clamped]
+
+    def solve(self, values, system, ordering) -> tuple[gtsam.Values | None, gtsam.VectorValues | None, int, bool]:
+        """(projected candidate, its tangent step, linear solves, whether components were held);
+        a None candidate when a linear solve failed."""
+        if values is not self.base:  # a step was accepted: the held components now sit at their bounds
+            self.held = {i: 0.0 for i in self.held}
+            self.base = values
+        held = dict(self.held)
+        candidate = step = None
         solves = 0
-        for _ in range(_ACTIVE_SET_ROUNDS):
-            new = [i for i in self.moved(delta, step) if i not in held]
-            if not new:
-                break
-            flat = step.vector(self.keys)
-            held.update((int(i), float(flat[i])) for i in new)
-            constrained = gtsam.GaussianFactorGraph()
-            constrained.push_back(system)
-            indices = np.array(sorted(held))
-            for owner in np.unique(self.owner[indices]):
-                rows = indices[self.owner[indices] == owner]
-                key, dim = self.keys[owner], int(self.offsets[owner + 1] - self.offsets[owner])
-                select = np.eye(dim)[rows - self.offsets[owner]]
-                target = np.array([held[int(i)] for i in rows])
-                constrained.push_back(
-                    gtsam.JacobianFactor(key, select, target, gtsam.noiseModel.Constrained.All(len(rows)))
-                )
-            resolved = _solve(constrained, ordering)
+        for _ in range(_ACTIVE_SET_ROUNDS + 1):
+            delta = _solve(self.with_holds(system, held), ordering)
             solves += 1
-            if resolved is None:
-                break
-            delta = resolved
+            if delta is None:
+                return None, None, solves, bool(held)
             candidate, step = self.apply(values, delta)
-        return candidate, step, solves
+            new = [int(i) for i in self.moved(delta, step) if int(i) not in held]
+            released = self.releasable(values, system, delta, held) if held else []
+            if not new and not released:
+                break
+            flat = self.flat(step)
+            held.update((i, float(flat[i])) for i in new)
+            for i in released:
+                del held[i]
+        self.held = held
+        return candidate, step, solves, bool(held)
 
 
 def _stop_after_step(opts: SolverOptions, cost: float, decrease: float, step_norm: float) -> str:
@@ -448,13 +494,12 @@ def levenberg_marquardt(
             system = _combined(linear, None if damping is None else damping.graph(grid.k, lam))
             if ordering is None:
                 ordering = _make_ordering(opts.ordering, graph, values, system)
-            delta = _solve(system, ordering)
-            candidate, step, extra_solves = None, delta, 0
-            if delta is not None:
-                if projection is None:
-                    candidate = values.retract(delta)
-                else:
-                    candidate, step, extra_solves = projection.step(values, delta, system, ordering)
+            if projection is None:
+                step = _solve(system, ordering)
+                candidate, extra_solves, held = None if step is None else values.retract(step), 0, False
+            else:
+                candidate, step, solves, held = projection.solve(values, system, ordering)
+                extra_solves = solves - 1
             t_solved = time.perf_counter()
             if candidate is None:
                 predicted, step_norm, new_cost = math.nan, math.nan, math.inf
@@ -516,7 +561,7 @@ def levenberg_marquardt(
                 reason = "small_step"
                 break
             curvature = math.nan
-            if extra_solves == 0 and candidate is not None and step_norm > 0.0:
+            if not held and candidate is not None and step_norm > 0.0:
                 # For the exact LM step, L(0) − L(δ) = ½ δᵀHδ + λ‖δ‖².
                 curvature = 2.0 * (predicted - lam * step_norm**2) / step_norm**2
             if not grid.rejected(curvature):
