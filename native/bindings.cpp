@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "body_kernels.h"
+#include "interpolation.h"
 #include "reprojection.h"
 
 namespace nb = nanobind;
@@ -298,6 +299,17 @@ nb::tuple reproject(const InI& parents, const InF& offsets, const InF& d_offsets
   return nb::make_tuple(residual.to_numpy(), jacobians ? jacobian->to_numpy() : nb::none(), valid.to_numpy());
 }
 
+nb::tuple interpolate_pose(const InF& first, const InF& second, double fraction) {
+  check_shape(first, "first", {4, 4});
+  check_shape(second, "second", {4, 4});
+  check_rotations(first.data(), 1, "first", false);
+  check_rotations(second.data(), 1, "second", false);
+  if (!(fraction >= 0.0 && fraction <= 1.0)) throw std::invalid_argument("fraction: must lie in [0, 1]");
+  Buffer<double> out({4, 4}), d_first({6, 6}), d_second({6, 6});
+  mocapgraph::interpolate_pose(first.data(), second.data(), fraction, out.get(), d_first.get(), d_second.get());
+  return nb::make_tuple(out.to_numpy(), d_first.to_numpy(), d_second.to_numpy());
+}
+
 }  // namespace
 
 NB_MODULE(_native, m) {
@@ -318,4 +330,9 @@ NB_MODULE(_native, m) {
         "intrinsics (C, 4) fx, fy, cx, cy, observed (C, K, 2) pixels (NaN = missing), obs_weights (C, K).\n"
         "Returns (residual (2 C K,), jacobian (2 C K, P + 6 C) or None, valid (C, K) bool);\n"
         "see mocapgraph.factors.reprojection_kernel for the layout.");
+
+  m.def("interpolate_pose", &interpolate_pose, "first"_a, "second"_a, "fraction"_a,
+        "The pose a fraction of the way from first to second (4, 4) world_T_root: slerp of the\n"
+        "rotation, linear translation. Returns (pose (4, 4), d_first (6, 6), d_second (6, 6)),\n"
+        "Jacobians in GTSAM's Pose3 tangent (rotation first); see mocapgraph.factors.interpolation.");
 }

@@ -1,4 +1,5 @@
 #include "body_kernels.h"
+#include "so3.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,53 +9,6 @@
 
 namespace mocapgraph {
 namespace {
-
-// Same switch-over as mocapgraph/body/rotations.py; with the theta^4 terms kept the series are
-// exact to round-off there.
-constexpr double kSmallAngle = 1e-4;
-
-// Exp(theta) and, if jr != nullptr, the right Jacobian Jr(theta); both 3x3 row-major.
-inline void exp_and_right_jacobian(const double* th, double* R, double* jr) {
-  const double x = th[0], y = th[1], z = th[2];
-  const double t2 = x * x + y * y + z * z;
-  double a, b, c;  // sin t / t, (1 - cos t) / t^2, (t - sin t) / t^3
-  if (t2 < kSmallAngle * kSmallAngle) {
-    a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0;
-    b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0;
-    c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0;
-  } else {
-    const double t = std::sqrt(t2);
-    const double s = std::sin(t);
-    const double h = std::sin(0.5 * t);
-    a = s / t;
-    // 1 - cos t written as 2 sin^2(t/2): no cancellation for small t.
-    b = 2.0 * h * h / t2;
-    c = (t - s) / (t2 * t);
-  }
-  // K = [th]x, K^2 = th th^T - t^2 I.
-  const double kk[9] = {x * x - t2, x * y, x * z, x * y, y * y - t2, y * z, x * z, y * z, z * z - t2};
-  const double k[9] = {0.0, -z, y, z, 0.0, -x, -y, x, 0.0};
-  for (int i = 0; i < 9; ++i) R[i] = a * k[i] + b * kk[i];
-  R[0] += 1.0;
-  R[4] += 1.0;
-  R[8] += 1.0;
-  if (jr != nullptr) {
-    for (int i = 0; i < 9; ++i) jr[i] = -b * k[i] + c * kk[i];
-    jr[0] += 1.0;
-    jr[4] += 1.0;
-    jr[8] += 1.0;
-  }
-}
-
-// C = A B for 3x3 row-major matrices.
-inline void mat_mul(const double* A, const double* B, double* C) {
-  for (int i = 0; i < 3; ++i) {
-    const double a0 = A[3 * i], a1 = A[3 * i + 1], a2 = A[3 * i + 2];
-    C[3 * i + 0] = a0 * B[0] + a1 * B[3] + a2 * B[6];
-    C[3 * i + 1] = a0 * B[1] + a1 * B[4] + a2 * B[7];
-    C[3 * i + 2] = a0 * B[2] + a1 * B[5] + a2 * B[8];
-  }
-}
 
 // y = A x for a 3x3 row-major A.
 inline void mat_vec(const double* A, const double* x, double* y) {

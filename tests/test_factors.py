@@ -174,8 +174,14 @@ class Scene:
         for c in (0, 2):
             self.values.insert(camera_key(c, 7), gtsam.Pose3(self.cameras[c]).retract(rng.normal(scale=0.01, size=6)))
 
+    @property
+    def usable_rows(self) -> np.ndarray:
+        """``(2·3·17,)`` bool: the kernel's rows of observations with finite pixels and weight > 0."""
+        return np.repeat((np.isfinite(self.observed).all(-1) & (self.weights > 0)).ravel(), 2)
+
     def independent_residual(self, values: gtsam.Values) -> np.ndarray:
-        """The numpy reference kernel with a freshly built table (no cache, no native code)."""
+        """The numpy reference kernel with a freshly built table (no cache, no native code), on
+        the usable rows."""
         cameras = self.cameras.copy()
         for c in (0, 2):
             cameras[c] = values.atPose3(camera_key(c, 7)).matrix()
@@ -190,7 +196,7 @@ class Scene:
             self.scale.sigma_px,
             jacobians=False,
         )
-        return result.residual / self.noise_px
+        return result.residual[self.usable_rows] / self.noise_px
 
 
 @pytest.fixture(scope="module", params=[0, 1])
@@ -203,9 +209,10 @@ def scene(body, request):
 
 
 def test_reprojection_keys_and_dimension(scene):
-    """Keys are [root, pose, shape, refined cameras]; the fixed camera has none; 2·C·K rows."""
+    """Keys are [root, pose, shape, refined cameras]; the fixed camera has none; two rows per
+    usable observation (3 cameras × 17 points, less 3 NaN and 1 zero weight)."""
     assert list(scene.factor.keys()) == [root_key(7), pose_key(7), shape_key(), camera_key(0, 7), camera_key(2, 7)]
-    assert scene.factor.dim() == 2 * 3 * 17
+    assert scene.factor.dim() == 2 * (3 * 17 - 4)
 
 
 @pytest.mark.parametrize("gm_sigma_px", [8.0, math.inf])
@@ -224,13 +231,22 @@ def test_reprojection_error_is_half_squared_whitened_residual(scene):
         assert scene.factor.error(scene.values) == pytest.approx(0.5 * want @ want, rel=1e-10)
 
 
-def test_reprojection_missing_points_have_zero_rows(scene):
-    """NaN observations and zero weights give zero residual rows and zero Jacobian rows."""
+def test_reprojection_missing_points_have_no_rows(scene):
+    """A NaN pixel and a zero weight both drop the point's rows: the same factor results when the
+    NaN points get arbitrary pixels and weight 0; a factor with nothing usable is refused."""
+    observed, weights = scene.observed.copy(), scene.weights.copy()
+    missing = ~np.isfinite(observed).all(-1)
+    observed[missing] = [5000.0, -700.0]
+    weights[missing] = 0.0
+    args = (root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None], scene.intrinsics)
+    zeroed = reprojection_factor(scene.body, scene.cache, *args, observed, weights, FORMAT, scene.scale, noise_px=scene.noise_px)
+    assert zeroed.dim() == scene.factor.dim()
     A, b = scene.factor.linearize(scene.values).jacobian()
-    rows = A.reshape(3, 17, 2, -1)
-    for c, k in [(0, 2), (1, 11), (2, 0), (1, 5)]:
-        assert not np.any(rows[c, k])
-        assert not np.any(b.reshape(3, 17, 2)[c, k])
+    A2, b2 = zeroed.linearize(scene.values).jacobian()
+    np.testing.assert_array_equal(A, A2)
+    np.testing.assert_array_equal(b, b2)
+    with pytest.raises(MocapgraphError, match="no usable observation"):
+        reprojection_factor(scene.body, scene.cache, *args, observed, np.zeros_like(weights), FORMAT, scene.scale)
 
 
 def test_reprojection_with_a_fixed_shape(scene):
@@ -251,6 +267,72 @@ def test_reprojection_with_a_fixed_shape(scene):
         reprojection_factor(
             scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
             scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, fixed_shape=scene.shape,
+        )  # fmt: skip
+
+
+def interpolated_factor(scene, fraction: float, shape=True):
+    """The scene's observations explained by the state ``fraction`` of the way from state 7 to 8."""
+    return reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key() if shape else None, scene.camera_keys,
+        [None, scene.cameras[1], None], scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale,
+        noise_px=scene.noise_px, fixed_shape=None if shape else scene.shape, next_state=(root_key(8), pose_key(8)),
+        fraction=fraction,
+    )  # fmt: skip
+
+
+def two_states(scene, seed: int = 3) -> gtsam.Values:
+    """The scene's values plus a next state 8 a few degrees and centimetres away from state 7."""
+    rng = np.random.default_rng(seed)
+    values = gtsam.Values(scene.values)
+    values.insert(root_key(8), values.atPose3(root_key(7)).retract(rng.normal(scale=0.1, size=6)))
+    values.insert(pose_key(8), values.atVector(pose_key(7)) + rng.normal(scale=0.1, size=63))
+    return values
+
+
+@pytest.mark.parametrize("gm_sigma_px", [8.0, math.inf])
+def test_interpolated_reprojection_jacobian(scene, gm_sigma_px):
+    """Between two grid states: Jacobians of both states (through the slerp) equal central differences."""
+    scene.scale.sigma_px = gm_sigma_px
+    factor = interpolated_factor(scene, 0.37)
+    assert list(factor.keys()) == [root_key(7), pose_key(7), root_key(8), pose_key(8), shape_key(), camera_key(0, 7), camera_key(2, 7)]
+    assert_jacobians(factor, two_states(scene))
+    assert_jacobians(interpolated_factor(scene, 0.8, shape=False), two_states(scene, seed=4))
+
+
+def test_interpolated_reprojection_equals_the_interpolated_state(scene):
+    """The residual equals the single-state factor at an independently interpolated state
+    (scipy's slerp of the root rotation, linear pelvis and joint rotation vectors), and the
+    fraction's ends reproduce the two states."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    scene.scale.sigma_px = 8.0
+    values = two_states(scene)
+    r7, r8 = values.atPose3(root_key(7)), values.atPose3(root_key(8))
+    q7, q8 = values.atVector(pose_key(7)), values.atVector(pose_key(8))
+    for a in (1e-9, 0.25, 0.5, 1 - 1e-9):
+        rotation = Slerp([0.0, 1.0], Rotation.from_matrix([r7.rotation().matrix(), r8.rotation().matrix()]))([a])
+        middle = gtsam.Values(values)
+        middle.update(root_key(7), gtsam.Pose3(gtsam.Rot3(rotation.as_matrix()[0]), (1 - a) * r7.translation() + a * r8.translation()))
+        middle.update(pose_key(7), (1 - a) * q7 + a * q8)
+        np.testing.assert_allclose(
+            interpolated_factor(scene, a).whitenedError(values), scene.factor.whitenedError(middle), rtol=1e-9, atol=1e-9
+        )
+
+
+def test_interpolated_reprojection_rejects_bad_fractions(scene):
+    for bad in (0.0, 1.0, -0.1, 1.5):
+        with pytest.raises(MocapgraphError, match="fraction"):
+            interpolated_factor(scene, bad)
+    with pytest.raises(MocapgraphError, match="needs next_state"):
+        reprojection_factor(
+            scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+            scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, fraction=0.5,
+        )  # fmt: skip
+    with pytest.raises(MocapgraphError, match="must all differ"):
+        reprojection_factor(
+            scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+            scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, next_state=(root_key(7), pose_key(8)),
+            fraction=0.5,
         )  # fmt: skip
 
 
@@ -552,3 +634,48 @@ def test_gauss_newton_recovers_a_known_body(body):
     )
     assert np.abs(got.joints[0] - truth.joints[0]).max() < 1e-3  # metres
     assert np.linalg.norm(gtsam.Pose3.Logmap(gtsam.Pose3(root).between(values.atPose3(root_key(0))))) < 1e-6
+
+
+# ---------------------------------------------------------------------------------------------
+# Interpolation between grid states
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-7, 0.05, 1.0, 3.0, np.pi - 1e-6])
+def test_native_interpolation_matches_the_gtsam_reference(angle):
+    """The native slerp and its Jacobians equal the GTSAM-Rot3 reference at every angle up to π,
+    and both equal central differences through Pose3.retract."""
+    from mocapgraph.factors.interpolation import interpolate_root, interpolate_root_reference
+
+    rng = np.random.default_rng(int(angle * 1000))
+    axis = rng.normal(size=3)
+    first = random_pose3(rng)
+    second = first.compose(gtsam.Pose3(gtsam.Rot3.Expmap(angle * axis / np.linalg.norm(axis)), rng.normal(size=3)))
+    for a in (0.0, 0.3, 0.5, 1.0):
+        got = interpolate_root(first.matrix(), second.matrix(), a)
+        want = interpolate_root_reference(first, second, a)
+        for g, w in zip(got, want):
+            np.testing.assert_allclose(g, w, rtol=0, atol=1e-9)
+        if angle > np.pi - 1e-3:
+            continue  # Log's branch flips under a 1e-6 perturbation at π: no derivative there
+        middle = gtsam.Pose3(got[0])
+        h = 1e-6
+        for which, A in ((0, got[1]), (1, got[2])):
+            numeric = np.zeros((6, 6))
+            for k in range(6):
+                step = np.zeros(6)
+                step[k] = h
+                ends = [[first, second], [first, second]]
+                ends[0][which] = ends[0][which].retract(step)
+                ends[1][which] = ends[1][which].retract(-step)
+                plus, minus = (gtsam.Pose3(interpolate_root(e[0].matrix(), e[1].matrix(), a)[0]) for e in ends)
+                numeric[:, k] = (middle.localCoordinates(plus) - middle.localCoordinates(minus)) / (2 * h)
+            np.testing.assert_allclose(A, numeric, rtol=0, atol=1e-7)
+
+
+def test_native_interpolation_rejects_bad_input():
+    from mocapgraph.body.native import native_module
+
+    with pytest.raises(ValueError, match="fraction"):
+        native_module().interpolate_pose(np.eye(4), np.eye(4), 1.5)
+    with pytest.raises(ValueError, match="not a rotation"):
+        native_module().interpolate_pose(2 * np.eye(4), np.eye(4), 0.5)

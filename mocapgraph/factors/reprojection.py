@@ -3,17 +3,21 @@
 One factor covers one body state (root, joint rotations, shape) seen by C cameras at once, so
 forward kinematics is shared between the cameras. Its keys are ``[root, pose, shape, *the
 refined camera keys]``; a camera can instead be fixed (a constant ``world_T_camera``, no key,
-no Jacobian).
+no Jacobian). The state can also lie between two states of a time grid (``next_state`` and
+``fraction``, :mod:`mocapgraph.factors.interpolation`): the keys are then ``[root, pose,
+next root, next pose, shape, *cameras]``.
 
 Residual: the native kernel's robust residual (:mod:`mocapgraph.factors.reprojection_kernel`)
-divided by ``noise_px``, ``2CK`` rows, camera-major. Per keypoint with pixel error ``e`` and
-weight ``w``::
+divided by ``noise_px``: two rows (x, y) per usable observation (finite pixels, weight > 0),
+camera-major, in keypoint order. Missing observations have no rows at all: they would only be
+zero rows, and GTSAM's linear solve pays for every row (forming ``AᵀA`` costs rows × columns²,
+the bulk of a solve with these factors). Per keypoint with pixel error ``e`` and weight ``w``::
 
     L2 (scale.sigma_px = inf):  ½ w² |e|² / noise_px²
     Geman-McClure (σ finite):   ½ w² σ²|e|² / (noise_px² (σ² + |e|²))
 
 The factor carries a unit noise model of that dimension and whitens itself: a GTSAM robust
-noise model on the whole ``2CK`` vector would saturate every factor together (see the GTSAM
+noise model on the whole residual vector would saturate every factor together (see the GTSAM
 performance notes), so the kernel has to be per keypoint, inside.
 
 - ``noise_px``: standard deviation of a good detection, in pixels. It sets the weight of the
@@ -47,6 +51,7 @@ from mocapgraph.body.native import native_module, table_arrays
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.body.table import BodyTable
 from mocapgraph.errors import MocapgraphError, as_checked_array
+from mocapgraph.factors.interpolation import interpolate_root
 from mocapgraph.factors.robust import RobustScale
 
 POSE_DIM = 3 * (NUM_JOINTS - 1)
@@ -129,12 +134,14 @@ def _check_rigid(T: np.ndarray, name: str) -> np.ndarray:
 class _ReprojectionError:
     """The CustomFactor callback: reads the variables, runs the native kernel, slices the Jacobian."""
 
-    def __init__(self, cache, body_keys, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth):
+    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, rows):
         self.cache = cache
-        self.root_key, self.pose_key = body_keys[:2]
-        self.shape_key = body_keys[2] if len(body_keys) == 3 else None
+        self.rows = rows  # the kernel's rows that are kept (usable observations), or None for all
+        self.states = states  # [(root key, pose key)]: one state, or two interpolated by `fraction`
+        self.fraction = fraction
+        self.shape_key = shape_key
         self.fixed_shape = fixed_shape
-        self.first_camera = len(body_keys)  # index of the first camera Jacobian in H
+        self.first_camera = 2 * len(states) + (shape_key is not None)  # index of the first camera Jacobian in H
         self.refined = refined  # [(camera index, key)]
         self.cameras = cameras  # (C, 4, 4), fixed cameras filled in, refined ones overwritten per call
         self.intrinsics = intrinsics
@@ -153,11 +160,18 @@ class _ReprojectionError:
         for c, key in self.refined:
             cameras[c] = values.atPose3(key).matrix()
         weights = self.weights if entry.all_mapped else self.weights * entry.table.mapped[None]
+        (root_key, pose_key), a = self.states[0], self.fraction
+        if len(self.states) == 1:
+            root, pose = values.atPose3(root_key).matrix(), values.atVector(pose_key)
+        else:
+            next_root, next_pose = self.states[1]
+            root, A0, A1 = interpolate_root(values.atPose3(root_key).matrix(), values.atPose3(next_root).matrix(), a)
+            pose = (1.0 - a) * values.atVector(pose_key) + a * values.atVector(next_pose)
         try:
             residual, jac, _ = self.kernel(
                 *entry.arrays,
-                values.atPose3(self.root_key).matrix(),
-                values.atVector(self.pose_key).reshape(NUM_JOINTS - 1, 3),
+                root,
+                pose.reshape(NUM_JOINTS - 1, 3),
                 cameras,
                 self.intrinsics,
                 self.observed,
@@ -168,12 +182,21 @@ class _ReprojectionError:
             )
         except ValueError as exc:
             raise MocapgraphError(str(exc)) from None
+        if self.rows is not None:
+            residual = residual[self.rows]
+            jac = None if jac is None else jac[self.rows]
         if H is not None:
             P = 6 + POSE_DIM + entry.table.shape_dim
-            H[0] = jac[:, 0:6]
-            H[1] = jac[:, 6 : 6 + POSE_DIM]
+            if len(self.states) == 1:
+                H[0] = jac[:, 0:6]
+                H[1] = jac[:, 6 : 6 + POSE_DIM]
+            else:
+                H[0] = jac[:, 0:6] @ A0
+                H[1] = (1.0 - a) * jac[:, 6 : 6 + POSE_DIM]
+                H[2] = jac[:, 0:6] @ A1
+                H[3] = a * jac[:, 6 : 6 + POSE_DIM]
             if self.shape_key is not None:
-                H[2] = jac[:, 6 + POSE_DIM : P]
+                H[self.first_camera - 1] = jac[:, 6 + POSE_DIM : P]
             for i, (c, _) in enumerate(self.refined):
                 H[self.first_camera + i] = jac[:, P + 6 * c : P + 6 * c + 6]
         return residual
@@ -195,6 +218,8 @@ def reprojection_factor(
     noise_px: float = 1.0,
     min_depth: float = 0.05,
     fixed_shape=None,
+    next_state: tuple[int, int] | None = None,
+    fraction: float = 0.0,
 ) -> gtsam.CustomFactor:
     """Reprojection of one body state's keypoints into C cameras (see the module docstring).
 
@@ -216,14 +241,20 @@ def reprojection_factor(
         noise_px: pixel standard deviation of a confident detection; the residual is divided by it.
         min_depth: metres; points closer to or behind a camera contribute nothing.
         fixed_shape: ``(S,)`` the constant shape when ``shape_key`` is None.
+        next_state: ``(root key, pose key)`` of the next grid state: the observed body is then
+            the state ``fraction`` of the way from ``(root_key, pose_key)`` to it
+            (:func:`~mocapgraph.factors.interpolation.interpolate_root`, joint rotations linear).
+        fraction: in ``(0, 1)`` with ``next_state``.
 
     Returns:
-        A ``gtsam.CustomFactor`` on ``[root_key, pose_key, shape_key, *refined camera keys]``
-        (camera order), dimension ``2CK``, unit noise model (whitened inside).
+        A ``gtsam.CustomFactor`` on ``[root_key, pose_key, *next_state, shape_key, *refined
+        camera keys]`` (camera order), two rows per usable observation (camera-major), unit noise
+        model (whitened inside).
 
     Raises:
         MocapgraphError: for inconsistent cameras, shapes, negative weights, non-positive
-            ``noise_px`` or focal lengths, or a cache of another body or format.
+            ``noise_px`` or focal lengths, a cache of another body or format, or no usable
+            observation at all.
     """
     if table_cache is None:
         table_cache = ShapeTableCache(body, keypoint_format)
@@ -264,16 +295,28 @@ def reprojection_factor(
             refined.append((c, int(key)))
     if (shape_key is None) == (fixed_shape is None):
         raise MocapgraphError("reprojection_factor: give exactly one of shape_key and fixed_shape")
-    body_keys = [int(root_key), int(pose_key)] + ([] if shape_key is None else [int(shape_key)])
-    keys = body_keys + [k for _, k in refined]
+    states = [(int(root_key), int(pose_key))]
+    if next_state is not None:
+        if not 0.0 < float(fraction) < 1.0:
+            raise MocapgraphError(f"fraction: must lie in (0, 1) with next_state, got {fraction}")
+        states.append((int(next_state[0]), int(next_state[1])))
+    elif fraction != 0.0:
+        raise MocapgraphError("fraction: needs next_state (the state it interpolates towards)")
+    keys = [k for state in states for k in state] + ([] if shape_key is None else [int(shape_key)])
+    keys += [k for _, k in refined]
     if len(set(keys)) != len(keys):
         raise MocapgraphError("reprojection_factor: the root, pose, shape and camera keys must all differ")
     if fixed_shape is not None:
         fixed_shape = as_checked_array(fixed_shape, "fixed_shape", (body.shape_dim,))
+    usable = np.repeat((np.isfinite(observed).all(-1) & (weights > 0)).ravel(), 2)
+    if not usable.any():
+        raise MocapgraphError("reprojection_factor: no usable observation (every point is NaN or has weight 0)")
 
     error = _ReprojectionError(
         table_cache,
-        body_keys,
+        states,
+        float(fraction),
+        None if shape_key is None else int(shape_key),
         fixed_shape,
         refined,
         cameras,
@@ -282,5 +325,6 @@ def reprojection_factor(
         np.ascontiguousarray(weights / noise_px),
         scale,
         float(min_depth),
+        None if usable.all() else np.flatnonzero(usable),
     )
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * C * K), keys, error)
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(int(usable.sum())), keys, error)

@@ -1,8 +1,14 @@
 """Which camera frames share a body state: the time axis of every body graph.
 
-Cameras need not be synchronised. Two policies:
+Cameras need not be synchronised. Three policies:
 
-- ``"states"`` (default): a body state at every distinct camera frame time; frames of different
+- ``"grid"``: body states on a regular time grid (``rate_hz``, e.g. 30 Hz), and every camera
+  frame explained at its own timestamp by the state interpolated between its two neighbours
+  (``FrameGroup.fractions``; :mod:`mocapgraph.factors.interpolation`). There are as many states
+  as grid points whatever the number of cameras, each one constrained by every camera that saw
+  the body near it; the cost is the interpolation (slerp of the root, linear joint rotation
+  vectors) between states 33 ms apart.
+- ``"states"``: a body state at every distinct camera frame time; frames of different
   cameras share a state only when their timestamps lie within ``merge_s`` (default 2 ms) of each
   other: synchronised rigs, or near-coincidences of free-running cameras, where a body moving at
   1.5 m/s shifts by at most 1.5 mm from the state's (mean) time. Every detection is otherwise used
@@ -17,7 +23,8 @@ Cameras need not be synchronised. Two policies:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,7 +32,9 @@ from mocapgraph.data_tools.capture import Capture
 from mocapgraph.data_tools.timing import match_times
 from mocapgraph.errors import MocapgraphError
 
-SYNC_POLICIES = ("states", "closest")
+SYNC_POLICIES = ("grid", "states", "closest")
+_SNAP = 1e-6
+"""A grid fraction this close to 0 or 1 is snapped to the grid state (33 ns at 30 Hz)."""
 
 
 @dataclass
@@ -34,15 +43,49 @@ class FrameGroup:
 
     time: float
     members: list[tuple[int, int]]
+    fractions: list[float] = field(default_factory=list)
+    """``"grid"`` only: per member, where its frame lies between this state (0) and the next
+    (towards 1, exclusive); empty means every member is at the state's own time."""
+
+    def fraction(self, m: int) -> float:
+        """Where member ``m`` lies between this state and the next (0: at this state)."""
+        return self.fractions[m] if self.fractions else 0.0
 
 
-def frame_groups(capture: Capture, sync: str = "states", reference: int = 0, merge_s: float = 2e-3) -> list[FrameGroup]:
-    """The body states of ``capture`` in time order, under the ``sync`` policy."""
+def _grid_groups(stamps: list[tuple[float, int, int]], rate_hz: float) -> list[FrameGroup]:
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise MocapgraphError(f"grid rate: must be a finite number of Hz > 0, got {rate_hz}")
+    period = 1.0 / rate_hz
+    start, end = stamps[0][0], stamps[-1][0]
+    count = math.ceil((end - start) / period - _SNAP) + 1  # the last state at or after the last frame
+    groups = [FrameGroup(start + k * period, [], []) for k in range(count)]
+    for t, c, j in stamps:
+        position = (t - start) / period
+        k = min(int(math.floor(position)), count - 1)
+        fraction = position - k
+        if fraction > 1.0 - _SNAP:
+            k, fraction = min(k + 1, count - 1), 0.0
+        elif fraction < _SNAP or k == count - 1:
+            fraction = 0.0
+        groups[k].members.append((c, j))
+        groups[k].fractions.append(fraction)
+    return groups
+
+
+def frame_groups(
+    capture: Capture, sync: str = "states", reference: int = 0, merge_s: float = 2e-3, rate_hz: float = 30.0
+) -> list[FrameGroup]:
+    """The body states of ``capture`` in time order, under the ``sync`` policy (``rate_hz``:
+    the ``"grid"`` policy's state rate)."""
     if sync not in SYNC_POLICIES:
         raise MocapgraphError(f"unknown synchronisation policy {sync!r}; choose one of {', '.join(SYNC_POLICIES)}")
-    if sync == "states":
-        stamps = [(t, c, j) for c, cam in enumerate(capture.cameras) for j, t in enumerate(cam.timestamps)]
+    if sync in ("states", "grid"):
+        stamps = [(float(t), c, j) for c, cam in enumerate(capture.cameras) for j, t in enumerate(cam.timestamps)]
         stamps.sort()
+        if not stamps:
+            raise MocapgraphError(f"capture {capture.name!r}: no camera has frames")
+        if sync == "grid":
+            return _grid_groups(stamps, rate_hz)
         groups: list[FrameGroup] = []
         first = 0.0
         for t, c, j in stamps:

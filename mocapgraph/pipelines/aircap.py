@@ -41,7 +41,7 @@ from mocapgraph.factors.priors import (
 )
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
-from mocapgraph.graphs.frame_groups import FrameGroup, frame_groups
+from mocapgraph.graphs.frame_groups import SYNC_POLICIES, FrameGroup, frame_groups
 from mocapgraph.graphs.keys import camera_key, camera_offset_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions, solve_staged
 
@@ -55,7 +55,8 @@ class AircapOptions:
 
     mode: str = "sequence"
     cameras: str = "refine"
-    sync: str | None = None  # default: "closest" for per-frame (the thesis), "states" for sequence
+    sync: str | None = None  # default: "closest" for per-frame (the thesis), "grid" for sequence
+    grid_hz: float = 30.0  # body states per second with sync "grid"
     detectors: tuple[str, ...] | None = None
     gm_sigma_px: float = 40.0
     noise_px: float = 3.0
@@ -82,6 +83,10 @@ class AircapOptions:
             raise MocapgraphError(f"mode {self.mode!r}: choose one of {', '.join(MODES)}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
+        if self.sync is not None and self.sync not in SYNC_POLICIES:
+            raise MocapgraphError(f"sync {self.sync!r}: choose one of {', '.join(SYNC_POLICIES)}")
+        if self.mode == "per-frame" and self.sync == "grid":
+            raise MocapgraphError("sync 'grid' interpolates between neighbouring states: use it with mode 'sequence'")
 
 
 @dataclass
@@ -93,6 +98,7 @@ class _Observation:
     fmt: str
     observed: np.ndarray  # (K, 2) pixels, NaN where missing
     weights: np.ndarray  # (K,) confidences, 0 where missing or rejected
+    fraction: float = 0.0  # between this state (0) and the next (towards 1): sync "grid"
 
 
 @dataclass
@@ -136,7 +142,7 @@ def _observations(capture: Capture, groups, detectors, usable: set[str], inliers
     states = []
     for group in groups:
         state = _State(group)
-        for c, j in group.members:
+        for m, (c, j) in enumerate(group.members):
             cam = capture.cameras[c]
             if cam.name not in usable:
                 continue
@@ -149,9 +155,19 @@ def _observations(capture: Capture, groups, detectors, usable: set[str], inliers
                 if name in inliers.get(cam.name, {}):
                     weights = weights * inliers[cam.name][name][j]
                 if np.any(weights > 0):
-                    state.observations.append(_Observation(c, j, det.format, kp[:, :2].copy(), weights))
+                    state.observations.append(_Observation(c, j, det.format, kp[:, :2].copy(), weights, group.fraction(m)))
         states.append(state)
     return states
+
+
+def detections_per_state(states: list[_State]) -> np.ndarray:
+    """``(N,)`` keypoints constraining each state: its own, plus those interpolated from the
+    previous state towards it (``"grid"``)."""
+    own = np.array([s.num_detections for s in states])
+    incoming = np.zeros(len(states), dtype=own.dtype)
+    for i, s in enumerate(states[:-1]):
+        incoming[i + 1] = sum(int((o.weights > 0).sum()) for o in s.observations if o.fraction > 0)
+    return own + incoming
 
 
 def neutral_pose() -> np.ndarray:
@@ -196,12 +212,13 @@ class _Problem:
         for obs in state.observations:
             prior, _ = self.camera_prior(obs.camera, obs.frame)
             key = camera_key(obs.camera, obs.frame) if self.refine else None
+            between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": obs.fraction} if obs.fraction else {}
             graph.add(
                 reprojection_factor(
                     self.body, self.tables[obs.fmt], root_key(i), pose_key(i), shape[0], [key],
                     [None if self.refine else prior], self.intrinsics[obs.camera][None],
                     obs.observed[None], obs.weights[None], obs.fmt, self.scale, noise_px=o.noise_px,
-                    fixed_shape=shape[1],
+                    fixed_shape=shape[1], **between,
                 )  # fmt: skip
             )
         graph.add(pose_regularizer_factor(pose_key(i), o.pose_prior_sigma_rad))
@@ -454,7 +471,7 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
             inliers.setdefault(cam_name, {})[name] = mask
 
     def problem_for(sync: str) -> tuple[_Problem, np.ndarray]:
-        groups = frame_groups(capture, sync)
+        groups = frame_groups(capture, sync, rate_hz=options.grid_hz)
         states = _observations(capture, groups, detectors, set(priors), inliers)
         if not any(s.observations for s in states):
             raise MocapgraphError(f"capture {capture.name!r}: no usable detections in any camera")
@@ -473,7 +490,7 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     graph = values = None
     if options.mode == "sequence":
         pf_times = times
-        problem, times = problem_for(options.sync or "states")
+        problem, times = problem_for(options.sync or "grid")
         _log(options, f"sequence: {len(times)} body states")
         estimate, graph, values = solve_sequence(problem, resample(estimate, pf_times, times))
     seconds = time.perf_counter() - start
@@ -485,7 +502,7 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     fk = body.forward(estimate.shape, root, pose)
     first_format = next(o.fmt for s in states for o in s.observations)
     keypoints = body.forward(estimate.shape, root, pose, keypoints=first_format).keypoints
-    detections = np.array([s.num_detections for s in states])
+    detections = detections_per_state(states)
     result = Result(
         pipeline="aircap", capture=capture_label or str(capture.path or capture.name), world_frame="capture",
         timestamps=times, joints=fk.joints, body_model=body.name, root=root, pose=pose, shape=estimate.shape,

@@ -73,7 +73,7 @@ def cmd_run_aircap(args) -> None:
     from mocapgraph.pipelines.aircap import AircapOptions, run_aircap_command
 
     options = AircapOptions(
-        mode=args.mode, cameras=args.cameras, sync=args.sync, gm_sigma_px=args.gm_sigma_px,
+        mode=args.mode, cameras=args.cameras, sync=args.sync, grid_hz=args.grid_hz, gm_sigma_px=args.gm_sigma_px,
         detectors=tuple(args.detectors.split(",")) if args.detectors else None,
         covariances=not args.no_covariances, progress=not args.quiet,
     )  # fmt: skip
@@ -219,7 +219,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--cameras", choices=("refine", "prior", "fixed"), default="refine",
         help="refine: jointly, near the offline GPS/IMU fusion (default); prior: held at that fusion; fixed: held at the onboard online estimate",
     )  # fmt: skip
-    aircap.add_argument("--sync", choices=("states", "closest"), help="a body state per frame time (sequence default) or the thesis' closest-frame pairing (per-frame default)")
+    aircap.add_argument(
+        "--sync", choices=("grid", "states", "closest"),
+        help="grid: states on a regular grid, each frame interpolated at its own time (sequence default); "
+        "states: a state per frame time; closest: the thesis' closest-frame pairing (per-frame default)",
+    )  # fmt: skip
+    aircap.add_argument("--grid-hz", type=float, default=30.0, help="body states per second with --sync grid (default 30)")
     aircap.add_argument("--detectors", help="comma-separated detector names (default: all)")
     aircap.add_argument("--gm-sigma-px", type=float, default=40.0, help="Geman-McClure scale in pixels (default 40)")
     aircap.add_argument("--no-covariances", action="store_true", help="skip the marginal covariances")
