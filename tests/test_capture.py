@@ -113,7 +113,9 @@ def edit_manifest(path, old, new):
         (lambda p: edit_manifest(p, "image_size = [", "image_size = [0, "), r"cameras.static0.image_size: expected \[width, height\]"),
         (lambda p: edit_manifest(p, 'timestamps = "cameras/static0/timestamps.npy"', 'timestamps = "../elsewhere.npy"'), "points outside the directory"),
         (lambda p: (p / "cameras/uav1/detector_hrnet.npz").unlink(), r"cameras.uav1.detectors\[0\].file: file 'cameras/uav1/detector_hrnet.npz' not found"),
-        (lambda p: np.save(p / "cameras/static0/timestamps.npy", np.array([0.0, 0.1, 0.1, 0.2, 0.3, 0.4])), r"cameras/static0/timestamps.npy: timestamps: must be strictly increasing \(index 2"),
+        (lambda p: np.save(p / "cameras/static0/timestamps.npy", np.array([0.0, 0.1, np.nan, 0.05, 0.3, 0.4])), r"cameras/static0/timestamps.npy: timestamps: contains NaN or inf \(first at \(2,\)\)"),
+        (lambda p: np.save(p / "cameras/static0/timestamps.npy", np.zeros(0)), r"cameras/static0/timestamps.npy: timestamps: is empty"),
+        (lambda p: np.save(p / "cameras/static0/timestamps.npy", np.array([0.0, 0.2, 0.1, 0.3, 0.4])), r"cameras/static0/detector_openpose.npz: keypoints: expected shape \(5, 25, 3\), got \(6, 25, 3\)"),
         (lambda p: np.savez(p / "cameras/static0/detector_openpose.npz", keypoints=np.zeros((5, 25, 3))), r"cameras/static0/detector_openpose.npz: keypoints: expected shape \(6, 25, 3\), got \(5, 25, 3\)"),
         (lambda p: np.savez(p / "cameras/static0/detector_openpose.npz", keypoints=np.full((6, 25, 3), 2.0)), r"keypoints: confidences must lie in \[0, 1\]"),
         (lambda p: np.savez(p / "cameras/uav1/sensors/gps.npz", t=np.arange(3.0), position=np.zeros((3, 3))), r"cameras/uav1/sensors/gps.npz: sigma: missing"),
@@ -156,9 +158,137 @@ def test_failed_write_leaves_the_old_capture_intact(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cap"]
 
 
-def test_an_invalid_capture_is_never_written(tmp_path):
+def backwards_capture(tmp_path, timestamps):
+    """A capture whose camera static0 has per-frame poses and ``timestamps`` written over its clean ones."""
+    rng = np.random.default_rng(7)
+    original = make_capture()
+    static0 = original.cameras[0]
+    static0.moving, static0.extrinsics = True, random_root(rng, 6)
+    original.ground_truth.cameras["static0"] = random_root(rng, 6)
+    path = write_capture(original, tmp_path / "cap")
+    np.save(path / "cameras/static0/timestamps.npy", np.asarray(timestamps))
+    return original, path
+
+
+def assert_kept_frames(original: Capture, loaded: Capture, kept: list[int]):
+    """Camera static0 of ``loaded`` holds exactly the frames ``kept`` of ``original``; uav1 is untouched."""
+    a, b = original.camera("static0"), loaded.camera("static0")
+    assert b.num_frames == len(kept)
+    np.testing.assert_array_equal(b.detectors["openpose"].keypoints, a.detectors["openpose"].keypoints[kept])
+    np.testing.assert_array_equal(b.detectors["openpose"].boxes, a.detectors["openpose"].boxes[kept])
+    np.testing.assert_allclose(b.extrinsics, a.extrinsics[kept], atol=1e-12)
+    np.testing.assert_allclose(loaded.ground_truth.cameras["static0"], original.ground_truth.cameras["static0"][kept], atol=1e-12)
+    np.testing.assert_array_equal(loaded.camera("uav1").timestamps, original.camera("uav1").timestamps)
+    np.testing.assert_allclose(loaded.ground_truth.cameras["uav1"], original.ground_truth.cameras["uav1"], atol=1e-12)
+    np.testing.assert_array_equal(loaded.ground_truth.timestamps, original.ground_truth.timestamps)
+
+
+def test_a_clock_that_jumps_back_loses_frames_until_it_passes_its_maximum(tmp_path):
+    original, path = backwards_capture(tmp_path, [0.0, 0.1, 0.2, 0.05, 0.15, 0.3])
+    loaded = load_capture(path)
+    np.testing.assert_array_equal(loaded.camera("static0").timestamps, [0.0, 0.1, 0.2, 0.3])
+    assert_kept_frames(original, loaded, [0, 1, 2, 5])
+    assert loaded.notes == [
+        "camera static0: timestamps (cameras/static0/timestamps.npy) go backwards at frame 3 (0.050 s after 0.200 s); "
+        "dropped 2 of 6 frames that were not later than an earlier frame"
+    ]
+
+
+def test_a_repeated_timestamp_loses_the_later_copy(tmp_path):
+    original, path = backwards_capture(tmp_path, [0.0, 0.1, 0.1, 0.2, 0.2, 0.3])
+    loaded = load_capture(path)
+    np.testing.assert_array_equal(loaded.camera("static0").timestamps, [0.0, 0.1, 0.2, 0.3])
+    assert_kept_frames(original, loaded, [0, 1, 3, 5])
+    assert loaded.notes == [
+        "camera static0: timestamps (cameras/static0/timestamps.npy) repeat at frame 2 (0.100 s twice); "
+        "dropped 2 of 6 frames that were not later than an earlier frame"
+    ]
+
+
+def test_a_step_back_smaller_than_a_millisecond_is_printed_with_the_digits_it_needs(tmp_path):
+    _, path = backwards_capture(tmp_path, [0.0, 0.1, 1.00021, 1.00014, 1.1, 1.2])
+    assert load_capture(path).notes[0].startswith(
+        "camera static0: timestamps (cameras/static0/timestamps.npy) go backwards at frame 3 (1.0001 s after 1.0002 s); "
+        "dropped 1 of 6 frames"
+    )
+
+
+def test_a_clean_capture_has_no_notes(tmp_path):
+    assert load_capture(write_capture(make_capture(), tmp_path / "cap")).notes == []
+
+
+def test_a_repaired_camera_leaves_its_video_out(tmp_path):
+    """Camera frame i is video frame i; with frames dropped that no longer holds."""
+    _, path = backwards_capture(tmp_path, [0.0, 0.1, 0.2, 0.05, 0.15, 0.3])
+    (path / "cameras/static0/video.mp4").write_bytes(b"")
+    edit_manifest(path, 'name = "static0"\n', 'name = "static0"\nvideo = "cameras/static0/video.mp4"\n')
+    loaded = load_capture(path)
+    assert loaded.camera("static0").video is None and loaded.camera("static0").num_frames == 4
+    assert loaded.notes[1] == "camera static0: its video cameras/static0/video.mp4 no longer matches the kept frames one to one; left out"
+    np.save(path / "cameras/static0/timestamps.npy", np.arange(6) / 30.0)
+    clean = load_capture(path)
+    assert clean.camera("static0").video == "cameras/static0/video.mp4" and clean.notes == []
+
+
+def test_a_sensor_log_going_backwards_is_repaired(tmp_path):
+    original = make_capture()
+    path = write_capture(original, tmp_path / "cap")
+    gps = original.camera("uav1").sensors["gps"]
+    t = np.array([0.0, 0.01, 0.02, 0.03, 0.04, 0.02, 0.03, 0.05, 0.06, 0.07])
+    np.savez(path / "cameras/uav1/sensors/gps.npz", t=t, position=gps["position"], sigma=gps["sigma"])
+    loaded = load_capture(path)
+    kept = [0, 1, 2, 3, 4, 7, 8, 9]
+    repaired = loaded.camera("uav1").sensors["gps"]
+    np.testing.assert_array_equal(repaired["t"], t[kept])
+    np.testing.assert_array_equal(repaired["position"], gps["position"][kept])
+    np.testing.assert_array_equal(repaired["sigma"], gps["sigma"][kept])
+    np.testing.assert_array_equal(loaded.camera("uav1").sensors["imu"]["t"], original.camera("uav1").sensors["imu"]["t"])
+    assert loaded.notes == [
+        "camera uav1: gps sample times (cameras/uav1/sensors/gps.npz) go backwards at sample 5 (0.020 s after 0.040 s); "
+        "dropped 2 of 10 samples that were not later than an earlier sample"
+    ]
+
+
+def test_a_repair_is_refused_when_asked(tmp_path):
+    _, path = backwards_capture(tmp_path, [0.0, 0.1, 0.2, 0.05, 0.15, 0.3])
+    with pytest.raises(CaptureError, match=r"cameras/static0/timestamps.npy: timestamps: must be strictly increasing \(index 3: 0.05 after 0.2\)"):
+        load_capture(path, repair=False)
+
+
+def test_ground_truth_body_timestamps_are_never_repaired(tmp_path):
+    path = write_capture(make_capture(), tmp_path / "cap")
+    with np.load(path / "ground_truth/body.npz") as f:
+        body = dict(f)
+    body["timestamps"] = np.array([0.0, 0.1, 0.05, 0.2, 0.3, 0.4])
+    np.savez(path / "ground_truth/body.npz", **body)
+    with pytest.raises(CaptureError, match=r"ground_truth/body.npz: timestamps: must be strictly increasing \(index 2: 0.05 after 0.1\)"):
+        load_capture(path)
+
+
+def repeat_camera_frame(c: Capture) -> None:
+    c.cameras[0].timestamps = np.array([0.0, 0.0, 1, 2, 3, 4])
+
+
+def step_camera_back(c: Capture) -> None:
+    c.cameras[0].timestamps = np.array([0.0, 1, 2, 1.5, 3, 4])
+
+
+def step_sensor_back(c: Capture) -> None:
+    c.cameras[1].sensors["imu"]["t"] = np.array([0.0, 0.01, 0.02, 0.01, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09])
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (repeat_camera_frame, r"cameras/static0/timestamps.npy: timestamps: must be strictly increasing \(index 1: 0.0 after 0.0\)"),
+        (step_camera_back, r"cameras/static0/timestamps.npy: timestamps: must be strictly increasing \(index 3: 1.5 after 2.0\)"),
+        (step_sensor_back, r"cameras/uav1/sensors/imu.npz: t: must be strictly increasing \(index 3: 0.01 after 0.02\)"),
+    ],
+)
+def test_an_invalid_capture_is_never_written(tmp_path, mutate, message):
+    """A written capture never needs a repair: times that the loader would repair are refused."""
     bad = make_capture()
-    bad.cameras[0].timestamps = np.array([0.0, 0.0, 1, 2, 3, 4])
-    with pytest.raises(CaptureError, match="strictly increasing"):
+    mutate(bad)
+    with pytest.raises(CaptureError, match=message):
         write_capture(bad, tmp_path / "cap")
     assert not list(tmp_path.iterdir())

@@ -6,9 +6,12 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
+from mocapgraph.data_tools.capture import write_capture
 from mocapgraph.pipelines.cli import main
+from test_capture import make_capture
 
 
 def test_body_info_lists_joints_keypoints_and_shape(capsys):
@@ -62,6 +65,21 @@ def test_demo_runs_aircap_and_draws_the_body(tmp_path, capsys):
     png = tmp_path / "demo" / "body_poses.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     assert not list((tmp_path / "demo").glob("*.tmp*"))
+
+
+def test_capture_info_says_what_the_loader_repaired(tmp_path, capsys):
+    path = write_capture(make_capture(), tmp_path / "cap")
+    assert main(["capture", "info", str(path)]) == 0
+    assert "repaired" not in capsys.readouterr().out
+    np.save(path / "cameras/static0/timestamps.npy", np.array([0.0, 0.1, 0.2, 0.05, 0.15, 0.3]))
+    assert main(["capture", "info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "  static0    static     4 frames over 0.3 s at 30 fps" in out
+    assert out.endswith(
+        "repaired while loading:\n"
+        "  camera static0: timestamps (cameras/static0/timestamps.npy) go backwards at frame 3 (0.050 s after 0.200 s); "
+        "dropped 2 of 6 frames that were not later than an earlier frame\n"
+    )
 
 
 @pytest.mark.parametrize(

@@ -2,8 +2,11 @@
 
 A capture is a directory with a ``capture.toml`` manifest and array files (``.npy`` / ``.npz``).
 :func:`load_capture` validates everything on read and raises one :class:`CaptureError` naming
-the file and the field; :func:`write_capture` writes into a temporary directory and renames it
-into place, so a crash never leaves a half-written capture where a good one was.
+the file and the field. The one thing it repairs instead of refusing is a recorded time axis that
+is not strictly increasing (camera timestamps, sensor sample times): it drops the samples that are
+not later than an earlier one and says so in :attr:`Capture.notes`. :func:`write_capture` writes
+into a temporary directory and renames it into place, so a crash never leaves a half-written
+capture where a good one was; it refuses what the loader would have to repair.
 
 In memory, camera poses are ``world_T_camera (…, 4, 4)`` (OpenCV camera: x right, y down,
 z forward; the convention of ``gtsam.PinholeCamera``). Files store ``R, t`` world→camera
@@ -12,7 +15,7 @@ z forward; the convention of ``gtsam.PinholeCamera``). Files store ``R, t`` worl
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -138,6 +141,8 @@ class Capture:
         ground_truth: or None.
         metadata: free-form manifest entries (generator, seed, scenario, …).
         path: the directory it was loaded from, or None.
+        notes: human-readable repairs made while loading (e.g. frames dropped because a camera's
+            timestamps go backwards); empty for a clean capture.
     """
 
     name: str
@@ -146,6 +151,7 @@ class Capture:
     ground_truth: GroundTruth | None = None
     metadata: dict = field(default_factory=dict)
     path: Path | None = None
+    notes: list[str] = field(default_factory=list)
 
     def camera(self, name: str) -> Camera:
         for cam in self.cameras:
@@ -178,20 +184,32 @@ def Rt_from_world_T_camera(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # Reading
 
 
-def load_capture(path: str | Path) -> Capture:
-    """Read and validate a capture directory (or its ``capture.toml``)."""
+def load_capture(path: str | Path, *, repair: bool = True) -> Capture:
+    """Read and validate a capture directory (or its ``capture.toml``).
+
+    Recorded time axes (a camera's timestamps, a sensor's sample times) that are not strictly
+    increasing are repaired: only samples later than every earlier one are kept, in every array of
+    that camera or sensor (and in the ground-truth poses of that camera), and ``Capture.notes``
+    says what was dropped. With ``repair=False`` they are refused like any other bad field.
+    """
     root, doc, where = read_manifest(path, MANIFEST, FORMAT_NAME, FORMAT_VERSION, CaptureError)
     files = ArrayFiles(root, CaptureError)
     cams = require_key(doc, "cameras", where, list)
     if not cams:
         raise where("cameras").fail("a capture needs at least one camera")
-    cameras = [_read_camera(c, where(f"cameras[{i}]"), files) for i, c in enumerate(cams)]
+    notes: list[str] | None = [] if repair else None
+    cameras, kept = [], {}
+    for i, c in enumerate(cams):
+        cam, keep = _read_camera(c, where(f"cameras[{i}]"), files, notes)
+        cameras.append(cam)
+        if keep is not None:
+            kept[cam.name] = keep
     names = [c.name for c in cameras]
     if len(set(names)) != len(names):
         raise where("cameras").fail(f"camera names must be unique, got {names}")
     gt = None
     if "ground_truth" in doc:
-        gt = _read_ground_truth(doc["ground_truth"], where("ground_truth"), files, cameras)
+        gt = _read_ground_truth(doc["ground_truth"], where("ground_truth"), files, cameras, kept)
     metadata = {k: v for k, v in doc.items() if k not in ("format", "version", "name", "world_frame", "cameras", "ground_truth")}
     return Capture(
         name=str(doc.get("name", root.name)),
@@ -200,10 +218,54 @@ def load_capture(path: str | Path) -> Capture:
         ground_truth=gt,
         metadata=metadata,
         path=root,
+        notes=notes or [],
     )
 
 
-def _read_camera(doc, where: Where, files: ArrayFiles) -> Camera:
+def _increasing_part(t: np.ndarray, where: Where, notes: list[str] | None, what: str, unit: str) -> np.ndarray | None:
+    """Which samples of a recorded time axis ``t (N,)`` to keep: a mask ``(N,)``, or None for all.
+
+    A sample is kept when it is strictly later than every earlier one, so a clock that jumps back
+    loses its samples until it passes its earlier maximum again, and a repeated time loses the
+    later copy; what remains is strictly increasing. The repair is described in ``notes``
+    (``what`` names the axis, ``unit`` its samples); with ``notes`` None, ``t`` must already be
+    strictly increasing.
+    """
+    if notes is None or t.size == 0:
+        check_increasing(t, where)
+        return None
+    # The running maximum of all earlier samples is a kept sample (its first occurrence is).
+    keep = t > np.maximum.accumulate(np.r_[-np.inf, t[:-1]])
+    if keep.all():
+        return None
+    i = int(np.argmin(keep))  # every sample before i is kept, so t[i - 1] is the maximum it fails
+    if t[i] == t[i - 1]:
+        how = f"repeat at {unit} {i} ({t[i]:.3f} s twice)"
+    else:
+        now, before = _distinct_seconds(t[i], t[i - 1])
+        how = f"go backwards at {unit} {i} ({now} s after {before} s)"
+    dropped = int(len(t) - keep.sum())
+    notes.append(
+        f"{what} ({where.file}) {how}; dropped {dropped} of {len(t)} {unit}s that were not later than an earlier {unit}"
+    )
+    return keep
+
+
+def _distinct_seconds(a: float, b: float) -> tuple[str, str]:
+    """Two different times printed with 3 decimals, or as many more as it takes to tell them apart."""
+    for digits in range(3, 10):
+        if f"{a:.{digits}f}" != f"{b:.{digits}f}":
+            break
+    return f"{a:.{digits}f}", f"{b:.{digits}f}"
+
+
+def _read_camera(doc, where: Where, files: ArrayFiles, notes: list[str] | None) -> tuple[Camera, np.ndarray | None]:
+    """The camera described by manifest table ``doc``, and which of its file's frames it kept.
+
+    Arrays are validated against the frame count of the files; when the timestamps need a repair
+    (:func:`_increasing_part`) every per-frame array then keeps the same frames, and the mask
+    ``(T_file,)`` is returned (else None) so that the ground-truth poses can do the same.
+    """
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
     name = require_key(doc, "name", where, str)
@@ -223,7 +285,7 @@ def _read_camera(doc, where: Where, files: ArrayFiles) -> Camera:
         raise where("frame_rate").fail(f"must be positive, got {rate}")
     ts_file = require_key(doc, "timestamps", where, str)
     timestamps = check_array(files.npy(ts_file, where("timestamps")), where.at(ts_file, "timestamps"), (None,))
-    check_increasing(timestamps, where.at(ts_file, "timestamps"))
+    keep = _increasing_part(timestamps, where.at(ts_file, "timestamps"), notes, f"camera {name}: timestamps", "frame")
     T = len(timestamps)
 
     detectors = {}
@@ -251,7 +313,7 @@ def _read_camera(doc, where: Where, files: ArrayFiles) -> Camera:
 
     sensors = {}
     for i, sensor in enumerate(doc.get("sensors", [])):
-        kind, arrays = _read_sensor(sensor, where(f"sensors[{i}]"), files)
+        kind, arrays = _read_sensor(sensor, where(f"sensors[{i}]"), files, notes, name)
         if kind in sensors:
             raise where("sensors").fail(f"sensor kind {kind!r} appears twice")
         sensors[kind] = arrays
@@ -259,7 +321,7 @@ def _read_camera(doc, where: Where, files: ArrayFiles) -> Camera:
     video = doc.get("video")
     if video is not None:
         files.resolve(str(video), where("video"))
-    return Camera(
+    camera = Camera(
         name=name,
         K=K,
         distortion=distortion,
@@ -272,6 +334,32 @@ def _read_camera(doc, where: Where, files: ArrayFiles) -> Camera:
         mount=mount,
         sensors=sensors,
         video=video,
+    )
+    if keep is None:
+        return camera, None
+    if video is not None:
+        # Frame i of a camera is frame i of its video, and the format has no other mapping: after
+        # dropping frames the video would sit out of step with the detections and timestamps.
+        # Nothing in the pipelines reads the video, so the camera keeps its data without it.
+        notes.append(f"camera {name}: its video {video} no longer matches the kept frames one to one; left out")
+    return _keep_frames(camera, keep), keep
+
+
+def _keep_frames(camera: Camera, keep: np.ndarray) -> Camera:
+    """``camera`` with only the frames where ``keep (T_c,)`` is true, in every per-frame array.
+
+    A static ``(1, 4, 4)`` calibration stays: ``keep`` only exists for two or more frames.
+    """
+    per_frame = camera.extrinsics is not None and len(camera.extrinsics) == len(keep)
+    return replace(
+        camera,
+        timestamps=camera.timestamps[keep],
+        detectors={
+            name: replace(det, keypoints=det.keypoints[keep], boxes=None if det.boxes is None else det.boxes[keep])
+            for name, det in camera.detectors.items()
+        },
+        extrinsics=camera.extrinsics[keep] if per_frame else camera.extrinsics,
+        video=None,
     )
 
 
@@ -296,7 +384,10 @@ def _read_detector(doc, where: Where, files: ArrayFiles, frames: int) -> Detecto
     return Detector(name=name, format=fmt.name, keypoints=kp, boxes=boxes)
 
 
-def _read_sensor(doc, where: Where, files: ArrayFiles) -> tuple[str, dict[str, np.ndarray]]:
+def _read_sensor(
+    doc, where: Where, files: ArrayFiles, notes: list[str] | None, camera: str
+) -> tuple[str, dict[str, np.ndarray]]:
+    """A sensor log of ``camera``: its kind and arrays ``(N, …)``, repaired like the timestamps."""
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
     kind = require_key(doc, "kind", where, str)
@@ -306,14 +397,22 @@ def _read_sensor(doc, where: Where, files: ArrayFiles) -> tuple[str, dict[str, n
     spec = SENSOR_FIELDS[kind]
     raw = files.npz(rel, where("file"), tuple(spec))
     t = check_array(raw["t"], where.at(rel, "t"), (None,))
-    check_increasing(t, where.at(rel, "t"))
+    keep = _increasing_part(t, where.at(rel, "t"), notes, f"camera {camera}: {kind} sample times", "sample")
     arrays = {k: check_array(raw[k], where.at(rel, k), (len(t), *trailing)) for k, trailing in spec.items()}
     if kind == "self_pose":
         check_rotations(arrays["rotation"], where.at(rel, "rotation"))
+    if keep is not None:
+        arrays = {k: a[keep] for k, a in arrays.items()}
     return kind, arrays
 
 
-def _read_ground_truth(doc, where: Where, files: ArrayFiles, cameras: list[Camera]) -> GroundTruth:
+def _read_ground_truth(
+    doc, where: Where, files: ArrayFiles, cameras: list[Camera], kept: dict[str, np.ndarray]
+) -> GroundTruth:
+    """The ground truth; a camera's poses keep the frames ``kept[name] (T_file,)`` when given.
+
+    The body's timestamps are generated, not recorded, so they must be strictly increasing.
+    """
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
     body_model = require_key(doc, "body_model", where, str)
@@ -337,10 +436,13 @@ def _read_ground_truth(doc, where: Where, files: ArrayFiles, cameras: list[Camer
         for cam in cameras:
             if f"{cam.name}.R" not in arrays:
                 continue
-            Rc = check_array(arrays[f"{cam.name}.R"], where.at(crel, f"{cam.name}.R"), (cam.num_frames, 3, 3))
-            tc = check_array(arrays.get(f"{cam.name}.t"), where.at(crel, f"{cam.name}.t"), (cam.num_frames, 3))
+            keep = kept.get(cam.name)
+            frames = cam.num_frames if keep is None else len(keep)  # the count in the files
+            Rc = check_array(arrays[f"{cam.name}.R"], where.at(crel, f"{cam.name}.R"), (frames, 3, 3))
+            tc = check_array(arrays.get(f"{cam.name}.t"), where.at(crel, f"{cam.name}.t"), (frames, 3))
             check_rotations(Rc, where.at(crel, f"{cam.name}.R"))
-            cams[cam.name] = world_T_camera_from_Rt(Rc, tc)
+            poses = world_T_camera_from_Rt(Rc, tc)
+            cams[cam.name] = poses if keep is None else poses[keep]
         unknown = {k.split(".")[0] for k in arrays} - {c.name for c in cameras}
         if unknown:
             raise where.at(crel).fail(f"poses for unknown cameras {sorted(unknown)}")
@@ -355,10 +457,15 @@ def write_capture(capture: Capture, path: str | Path, overwrite: bool = False) -
     """Write ``capture`` as a directory at ``path``, atomically; returns the path.
 
     Everything goes into a temporary sibling directory that replaces ``path`` only when complete.
-    The capture is validated by reading the temporary copy back before it is moved into place.
+    The capture is validated by reading the temporary copy back before it is moved into place,
+    without repairs: a written capture never needs one.
     """
     return write_directory_atomically(
-        Path(path), overwrite, lambda tmp: _write_into(capture, tmp), load_capture, CaptureError
+        Path(path),
+        overwrite,
+        lambda tmp: _write_into(capture, tmp),
+        lambda tmp: load_capture(tmp, repair=False),
+        CaptureError,
     )
 
 

@@ -93,7 +93,8 @@ def check_increasing(t: np.ndarray, where: Where) -> None:
     steps = np.diff(t)
     if np.any(steps <= 0):
         i = int(np.argmax(steps <= 0))
-        raise where.fail(f"must be strictly increasing (index {i + 1}: {t[i + 1]!r} after {t[i]!r})")
+        # float(): NumPy 2 scalars repr as "np.float64(0.1)"
+        raise where.fail(f"must be strictly increasing (index {i + 1}: {float(t[i + 1])!r} after {float(t[i])!r})")
 
 
 def require_key(table: dict, key: str, where: Where, kind=None):

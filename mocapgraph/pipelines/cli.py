@@ -129,6 +129,10 @@ def cmd_capture_info(args) -> None:
         print(f"  {'':10s} detectors: {dets or 'none'}")
     gt = capture.ground_truth
     print(f"ground truth: {'none' if gt is None else f'{len(gt.timestamps)} body states ({gt.body_model}), cameras: {len(gt.cameras)}'}")
+    if capture.notes:
+        print("repaired while loading:")
+        for note in capture.notes:
+            print(f"  {note}")
 
 
 def cmd_bench_aircap(args) -> None:
