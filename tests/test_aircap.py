@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from mocapgraph.data_tools.capture import load_capture, write_capture
 from mocapgraph.data_tools.evaluation import evaluate
 from mocapgraph.data_tools.result import load_result
 from mocapgraph.data_tools.synthetic import synthesize
@@ -85,6 +86,27 @@ def test_camera_without_detections_or_gps_is_reported_not_fatal(capture, capsys)
     err = capsys.readouterr().err
     assert "uav2" in err  # the UAV without GPS is named
     assert np.isfinite(result.joints).all()
+
+
+def test_camera_clock_going_backwards_is_repaired_and_reported(capture, tmp_path, capsys):
+    """uav2's clock jumps back 0.3 s at frame 40: the loader drops the frames not later than an
+    earlier one, the run says so (stderr and the result's notes) and still fits the body."""
+    path = write_capture(capture, tmp_path / "cap")
+    stamps_file = path / "cameras" / "uav2" / "timestamps.npy"
+    stamps = np.load(stamps_file)
+    stamps[40:] -= 0.3
+    np.save(stamps_file, stamps)
+    loaded = load_capture(path)
+    kept = loaded.camera("uav2").num_frames
+    assert kept < len(stamps) and np.all(np.diff(loaded.camera("uav2").timestamps) > 0)
+    options = AircapOptions(mode="sequence", covariances=False, progress=True)
+    result = run_aircap(loaded, options)
+    err = capsys.readouterr().err
+    assert "uav2" in err and "backwards" in err
+    assert any("uav2" in n and "backwards" in n for n in result.parameters["notes"])
+    assert np.isfinite(result.joints).all() and np.isfinite(result.root).all()
+    assert len(result.cameras["uav2"].timestamps) == kept
+    assert evaluate(result, loaded).metrics["ra_mpjpe_m"] < 0.1
 
 
 def test_command_line_writes_a_result(tmp_path, capsys):

@@ -457,7 +457,8 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     if not detectors:
         raise MocapgraphError(f"capture {capture.name!r}: no camera has detections")
 
-    priors, notes = camera_tracks(capture, options.cameras)
+    priors, camera_notes = camera_tracks(capture, options.cameras)
+    notes = list(capture.notes) + camera_notes  # the loader's repairs first
     for note in notes:
         _log(options, note)
     if not priors:
