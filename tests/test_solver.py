@@ -316,6 +316,18 @@ def test_active_set_is_kept_while_the_bound_stays_active():
     assert not any(extra[first + 1 :])  # later tries held it from their first solve
 
 
+def test_staged_solve_carries_the_active_set_into_the_next_stage():
+    """A bound found in the first stage is held from the second stage's first solve."""
+    graph, initial, x_key, y_key = bounded_problem()
+    stages = [("a", None, SolverOptions(relative_tolerance=1e-3)), ("b", None, SolverOptions(**TIGHT))]
+    result = solve_staged(graph, initial, stages, project=clamp_x(x_key))
+    first = {stage: [row for row in result.log if row["stage"] == stage] for stage in ("a", "b")}
+    assert any(row["active_set_solves"] for row in first["a"])
+    assert first["b"] and first["b"][0]["active_set_solves"] == 0
+    assert result.values.atVector(x_key)[0] == pytest.approx(2.0, abs=1e-9)
+    assert result.values.atVector(y_key)[0] == pytest.approx(1.5, abs=1e-6)
+
+
 def test_active_set_releases_a_bound_the_optimum_leaves():
     """x is driven onto its upper bound by the first damped steps, but the optimum is interior
     (x = y ≈ -4.9): the held bound is released when the model's gradient points inside."""

@@ -471,7 +471,7 @@ def levenberg_marquardt(
     initial_error = cost
     grid = _LambdaGrid(opts, initial_lambda)
     damping = None if opts.gauss_newton else _Damping(values.dims())
-    projection = None if project is None else _Projection(project, values)
+    projection = project if isinstance(project, _Projection) or project is None else _Projection(project, values)
     ordering: gtsam.Ordering | None = None
     log: list[dict] = []
     iterations = 0
@@ -593,8 +593,10 @@ def solve_staged(
     Before stage ``(name, setup, options)`` runs, ``setup()`` is called (e.g. to change a robust
     scale that the graph's factors share; ``None`` skips it). Each stage re-evaluates the cost,
     so the setup may change the objective. ``kw`` (``project``, ``on_iteration``) is passed to
-    every stage. The result's log concatenates the stages (column ``stage``), ``iterations``
-    sums them, and ``converged`` / ``reason`` are the last stage's.
+    every stage; the active set of ``project`` carries over from one stage to the next (a
+    bound reached in one stage is held from the next stage's first solve). The result's log
+    concatenates the stages (column ``stage``), ``iterations`` sums them, and ``converged`` /
+    ``reason`` are the last stage's.
     """
     if not stages:
         raise MocapgraphError("stages: need at least one (name, setup, options) stage")
@@ -602,6 +604,8 @@ def solve_staged(
         raise MocapgraphError("solve_staged: 'stage' and 'initial_lambda' are set per stage")
     start = time.perf_counter()
     values = initial
+    if kw.get("project") is not None:
+        kw["project"] = _Projection(kw["project"], initial)
     log: list[dict] = []
     iterations = 0
     initial_error = math.nan

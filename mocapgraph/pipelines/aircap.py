@@ -74,6 +74,7 @@ class AircapOptions:
     camera_prior_kernel: str = "huber"
     camera_prior_white_fraction: float = 0.5  # frame-to-frame share of a GPS/IMU prior's std
     per_frame_iterations: int = 8
+    workers: int = 2  # processes for the per-frame pass (1: in this process)
     sequence_iterations: int = 30
     covariances: bool = True
     progress: bool = True
@@ -85,6 +86,8 @@ class AircapOptions:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
         if self.sync is not None and self.sync not in SYNC_POLICIES:
             raise MocapgraphError(f"sync {self.sync!r}: choose one of {', '.join(SYNC_POLICIES)}")
+        if not (isinstance(self.workers, int) and self.workers >= 1):
+            raise MocapgraphError(f"workers: a whole number of processes >= 1, got {self.workers!r}")
         if self.mode == "per-frame" and self.sync == "grid":
             raise MocapgraphError("sync 'grid' interpolates between neighbouring states: use it with mode 'sequence'")
 
@@ -246,14 +249,31 @@ class _Problem:
             if not values.exists(camera_key(c, j)):
                 values.insert(camera_key(c, j), gtsam.Pose3(prior))
 
-    def stages(self, iterations: int) -> list:
+    def time_ordering(self, values: gtsam.Values) -> list[int]:
+        """Elimination order for a sequence: body states and camera frames in time order (a
+        camera frame before the state after it), then the shared shape and camera offsets.
+
+        The graph is a chain in time with a few variables shared by all; eliminating along the
+        chain keeps every clique to neighbouring states, where COLAMD's order grew faster than
+        the sequence (solves 27 % faster at 60 s, 1.66 s against 2.29 s, measured).
+        """
+        timed = [(s.group.time, 1, [root_key(i), pose_key(i)]) for i, s in enumerate(self.states)]
+        if self.refine:
+            cams = self.capture.cameras
+            timed += [(cams[c].timestamps[j], 0, [camera_key(c, j)]) for c, j in self.camera_members(self.states)]
+        timed.sort(key=lambda item: (item[0], item[1]))
+        order = [key for _, _, keys in timed for key in keys]
+        listed = set(order)
+        return order + sorted(k for k in values.keys() if k not in listed)
+
+    def stages(self, iterations: int, ordering: str | list[int] = "colamd") -> list:
         """L2 until the cost settles, then Geman-McClure: robust costs from a poor start stall.
 
         λ starts at 1: the body's rotations make the first steps far from linear, and a small
         initial damping spent most solves on rejected steps (39 solves against 19, measured).
         """
         def stage(rel_tol: float) -> SolverOptions:
-            return SolverOptions(max_iterations=iterations, relative_tolerance=rel_tol, initial_lambda=1.0)
+            return SolverOptions(max_iterations=iterations, relative_tolerance=rel_tol, initial_lambda=1.0, ordering=ordering)
 
         return [
             ("l2", lambda: setattr(self.scale, "sigma_px", np.inf), stage(1e-2)),
@@ -300,19 +320,22 @@ def _read(values: gtsam.Values, i: int) -> tuple[gtsam.Pose3, np.ndarray]:
     return values.atPose3(root_key(i)), values.atVector(pose_key(i))
 
 
-def solve_per_frame(problem: _Problem, positions: np.ndarray, yaws: np.ndarray) -> _Estimate:
+def solve_per_frame(problem: _Problem, positions: np.ndarray, yaws: np.ndarray, span: tuple[int, int] | None = None) -> _Estimate:
     """Each state alone, in time order, warm-started from the previous one (the thesis' mode).
 
     ``positions (N, 3)`` and ``yaws (N,)`` are the tracker's initial guesses. The shape is held at
     the body model's default (estimating it from one frame is ill-posed; the sequence fit does
     it). The first state with detections tries four headings and keeps the best; states without
-    detections carry the previous estimate over (they are flagged unconstrained).
+    detections carry the previous estimate over (they are flagged unconstrained). ``span``
+    ``(start, stop)`` solves only those states (default: all).
     """
     o = problem.options
     shape = problem.body.default_shape.copy()
     roots, poses, cameras, log = [], [], {}, []
     previous: tuple[gtsam.Pose3, np.ndarray] | None = None
-    for i, state in enumerate(problem.states):
+    start, stop = span or (0, len(problem.states))
+    for i in range(start, stop):
+        state = problem.states[i]
         if not state.observations:
             root = previous[0] if previous else _upright(yaws[i], positions[i])
             roots.append(gtsam.Pose3(root.rotation(), positions[i]))
@@ -344,6 +367,44 @@ def solve_per_frame(problem: _Problem, positions: np.ndarray, yaws: np.ndarray) 
         if o.progress and i % 200 == 0:
             _log(o, f"per-frame {i + 1}/{len(problem.states)}")
     return _Estimate(roots, np.array(poses), shape, cameras, log)
+
+
+_FORKED: tuple | None = None
+"""(problem, positions, yaws) handed to forked workers by inheritance rather than pickling."""
+
+
+def _solve_span(span: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, dict, list]:
+    estimate = solve_per_frame(*_FORKED, span=span)
+    cameras = {m: p.matrix() for m, p in estimate.cameras.items()}
+    return np.stack([r.matrix() for r in estimate.roots]), estimate.poses, cameras, estimate.log
+
+
+def solve_per_frame_parallel(problem: _Problem, positions: np.ndarray, yaws: np.ndarray, workers: int) -> _Estimate:
+    """:func:`solve_per_frame` on ``workers`` consecutive spans of the states at once, one
+    forked process each; every span starts cold (four headings at its first detected state).
+
+    The states are independent but for the warm start, so the spans give the same answer up to
+    that restart, in about 1/workers of the time on as many free cores.
+    """
+    global _FORKED
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    n = len(problem.states)
+    bounds = np.linspace(0, n, workers + 1).round().astype(int)
+    spans = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    if len(spans) < 2:
+        return solve_per_frame(problem, positions, yaws)
+    _FORKED = (problem, positions, yaws)
+    try:
+        with ProcessPoolExecutor(len(spans), mp_context=multiprocessing.get_context("fork")) as pool:
+            parts = list(pool.map(_solve_span, spans))
+    finally:
+        _FORKED = None
+    roots = [gtsam.Pose3(T) for part in parts for T in part[0]]
+    cameras = {m: gtsam.Pose3(T) for part in parts for m, T in part[2].items()}
+    log = [row for part in parts for row in part[3]]
+    return _Estimate(roots, np.concatenate([part[1] for part in parts]), problem.body.default_shape.copy(), cameras, log)
 
 
 def resample(estimate: _Estimate, times: np.ndarray, new_times: np.ndarray) -> _Estimate:
@@ -399,7 +460,7 @@ def solve_sequence(problem: _Problem, start: _Estimate) -> tuple[_Estimate, gtsa
         _log(o, f"sequence {row.get('stage')} iteration {row.get('iteration')}: cost {row.get('cost_after', row.get('cost', 0.0)):.4g}")
 
     result = solve_staged(
-        graph, values, problem.stages(o.sequence_iterations), project=problem.project_shape,
+        graph, values, problem.stages(o.sequence_iterations, problem.time_ordering(values)), project=problem.project_shape,
         on_iteration=progress if o.progress else None,
     )  # fmt: skip
     v = result.values
@@ -486,7 +547,7 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     velocity = track.velocity_at(times)
     yaws = np.unwrap(np.arctan2(velocity[:, 1], velocity[:, 0]))
     _log(options, f"per-frame: {len(times)} body states, cameras {options.cameras}")
-    estimate = solve_per_frame(problem, positions, yaws)
+    estimate = solve_per_frame_parallel(problem, positions, yaws, options.workers)
     per_frame_seconds = time.perf_counter() - start
     graph = values = None
     if options.mode == "sequence":
