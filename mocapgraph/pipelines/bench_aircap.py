@@ -18,16 +18,20 @@ from mocapgraph.data_tools.evaluation import evaluate
 from mocapgraph.data_tools.synthetic import synthesize
 from mocapgraph.data_tools.triangulation import triangulate_capture
 from mocapgraph.data_tools.result import Result
+from mocapgraph.data_tools.timing import match_times
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.pipelines.aircap import AircapOptions, camera_tracks, run_aircap
 
 REPORTED = ("mpjpe_m", "pa_mpjpe_m", "ra_mpjpe_m", "mpe_m", "moe_rad", "mcpe_m", "mcoe_rad")
 
 
-def coverage(result: Result, truth_joints: np.ndarray, level: float = 0.95) -> float:
-    """Fraction of joints whose error lies inside the ``level`` ellipsoid of their covariance."""
-    cov = result.covariances["joints"]
-    err = result.joints - truth_joints
+def coverage(result: Result, truth_joints: np.ndarray, states: np.ndarray | None = None, level: float = 0.95) -> float:
+    """Fraction of joints whose error lies inside the ``level`` ellipsoid of their covariance;
+    ``truth_joints (N, 22, 3)`` at the result's states selected by the boolean mask ``states``
+    (default: all)."""
+    keep = slice(None) if states is None else states
+    cov = result.covariances["joints"][keep]
+    err = result.joints[keep] - truth_joints
     ok = np.isfinite(err).all(-1) & np.isfinite(cov).all((-1, -2))
     d2 = np.einsum("...i,...ij,...j->...", err[ok], np.linalg.inv(cov[ok]), err[ok])
     return float(np.mean(d2 <= chi2.ppf(level, 3)))
@@ -60,8 +64,10 @@ def bench_aircap(duration_s: float = 60.0, seed: int = 0) -> dict:
             with_cov = run_aircap(capture, replace(options, covariances=True))
             out["covariance_seconds"] = round(time.perf_counter() - start - with_cov.parameters["seconds"], 1)
             gt = capture.ground_truth
-            idx = np.searchsorted(gt.timestamps, with_cov.timestamps).clip(0, len(gt.timestamps) - 1)
-            out["coverage_95"] = round(coverage(with_cov, gt.joints[idx]), 3)
+            step = np.median(np.diff(gt.timestamps))
+            idx = match_times(gt.timestamps, with_cov.timestamps, tolerance=0.5 * step)  # as evaluate() matches
+            have = idx >= 0
+            out["coverage_95"] = round(coverage(with_cov, gt.joints[idx[have]], have), 3)
 
     priors, _ = camera_tracks(capture, "prior")
     calibrated = replace(
