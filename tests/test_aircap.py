@@ -17,7 +17,10 @@ from mocapgraph.pipelines.cli import main
 
 @pytest.fixture(scope="module")
 def capture():
-    return synthesize("aircap", seed=0, duration_s=3.0)
+    # 5 s rather than 3 s: over 3 s of seed 0 the body's height and size trade off against its
+    # depth below the UAVs (the sequence fit floated 0.57 m up with a 10 % smaller body, inside
+    # the GPS uncertainty), so absolute MPJPE compared GPS realisations rather than the fits.
+    return synthesize("aircap", seed=0, duration_s=5.0)
 
 
 def run(capture, **kw):
