@@ -204,6 +204,7 @@ class _Problem:
         self.tables = {fmt: ShapeTableCache(body, fmt) for fmt in formats}
         self.intrinsics = [np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) for c in capture.cameras]
         self.refine = options.cameras == "refine"
+        self.common: dict[int, np.ndarray] = {}  # camera index -> common_covariance
 
     def camera_prior(self, c: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         poses, cov = self.priors[self.capture.cameras[c].name]
@@ -233,10 +234,13 @@ class _Problem:
 
     def common_covariance(self, c: int) -> np.ndarray:
         """``(6, 6)``: camera ``c``'s prior covariance averaged over its frames, turned into the
-        world frame (the offset's tangent: ``O`` multiplies from the left)."""
-        poses, cov = self.priors[self.capture.cameras[c].name]
-        adjoint = np.stack([gtsam.Pose3(T).AdjointMap() for T in poses])
-        return np.mean(adjoint @ cov @ np.swapaxes(adjoint, 1, 2), axis=0)
+        world frame (the offset's tangent: ``O`` multiplies from the left). Computed once per
+        camera: the per-frame pass asks for it at every state."""
+        if c not in self.common:
+            poses, cov = self.priors[self.capture.cameras[c].name]
+            adjoint = np.stack([gtsam.Pose3(T).AdjointMap() for T in poses])
+            self.common[c] = np.mean(adjoint @ cov @ np.swapaxes(adjoint, 1, 2), axis=0)
+        return self.common[c]
 
     def add_camera_priors(self, graph, values, members) -> None:
         """Each refined camera frame near its GPS/IMU prior, through one offset per camera.
