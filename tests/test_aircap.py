@@ -76,6 +76,8 @@ def test_person_out_of_every_view_for_a_while(capture):
     result, metrics = run(replace(capture, cameras=cams), mode="sequence", cameras="refine")
     inside = (result.timestamps > gap[0] + 0.05) & (result.timestamps < gap[1] - 0.05)
     assert result.flags["unconstrained"][inside].all()
+    flagged = int(result.flags["unconstrained"].sum())
+    assert f"{flagged} of {len(result.timestamps)} body states have no detection near them" in " ".join(result.parameters["notes"])
     assert np.isfinite(result.joints).all() and np.isfinite(result.root).all()
     assert metrics["ra_mpjpe_m"] < 0.15
 
@@ -100,7 +102,8 @@ def test_camera_without_detections_or_gps_is_reported_not_fatal(capture, capsys)
     options = AircapOptions(mode="per-frame", cameras="refine", covariances=False, progress=True)
     result = run_aircap(replace(capture, cameras=cams), options)
     err = capsys.readouterr().err
-    assert "uav2" in err  # the UAV without GPS is named
+    assert "camera uav2: no GPS/IMU" in err  # the UAV without GPS is named
+    assert "camera uav1: no usable detections" in err  # and the camera that saw nothing
     assert np.isfinite(result.joints).all()
 
 

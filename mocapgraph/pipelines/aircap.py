@@ -582,6 +582,14 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     first_format = next(o.fmt for s in states for o in s.observations)
     keypoints = body.forward(estimate.shape, root, pose, keypoints=first_format).keypoints
     detections = detections_per_state(states)
+    seen = {o.camera for s in states for o in s.observations}
+    for c, cam in enumerate(capture.cameras):
+        if cam.name in priors and c not in seen:
+            notes.append(f"camera {cam.name}: no usable detections; it constrains nothing and keeps its prior trajectory")
+            _log(options, notes[-1])
+    if detections.min() == 0:
+        notes.append(f"{int((detections == 0).sum())} of {n} body states have no detection near them: flagged unconstrained")
+        _log(options, notes[-1])
     result = Result(
         pipeline="aircap", capture=capture_label or str(capture.path or capture.name), world_frame="capture",
         timestamps=times, joints=fk.joints, body_model=body.name, root=root, pose=pose, shape=estimate.shape,
