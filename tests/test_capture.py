@@ -183,25 +183,26 @@ def assert_kept_frames(original: Capture, loaded: Capture, kept: list[int]):
     np.testing.assert_array_equal(loaded.ground_truth.timestamps, original.ground_truth.timestamps)
 
 
-def test_a_clock_that_jumps_back_loses_frames_until_it_passes_its_maximum(tmp_path):
-    original, path = backwards_capture(tmp_path, [0.0, 0.1, 0.2, 0.05, 0.15, 0.3])
+@pytest.mark.parametrize(
+    ("stamps", "kept", "note"),
+    [
+        (  # a clock that jumps back loses frames until it passes its earlier maximum
+            [0.0, 0.1, 0.2, 0.05, 0.15, 0.3], [0, 1, 2, 5],
+            "go backwards at frame 3 (0.050 s after 0.200 s); dropped 2 of 6 frames",
+        ),
+        (  # a repeated timestamp loses the later copy
+            [0.0, 0.1, 0.1, 0.2, 0.2, 0.3], [0, 1, 3, 5],
+            "repeat at frame 2 (0.100 s twice); dropped 2 of 6 frames",
+        ),
+    ],
+)
+def test_timestamps_that_do_not_increase_are_repaired_and_noted(tmp_path, stamps, kept, note):
+    original, path = backwards_capture(tmp_path, stamps)
     loaded = load_capture(path)
     np.testing.assert_array_equal(loaded.camera("static0").timestamps, [0.0, 0.1, 0.2, 0.3])
-    assert_kept_frames(original, loaded, [0, 1, 2, 5])
+    assert_kept_frames(original, loaded, kept)
     assert loaded.notes == [
-        "camera static0: timestamps (cameras/static0/timestamps.npy) go backwards at frame 3 (0.050 s after 0.200 s); "
-        "dropped 2 of 6 frames that were not later than an earlier frame"
-    ]
-
-
-def test_a_repeated_timestamp_loses_the_later_copy(tmp_path):
-    original, path = backwards_capture(tmp_path, [0.0, 0.1, 0.1, 0.2, 0.2, 0.3])
-    loaded = load_capture(path)
-    np.testing.assert_array_equal(loaded.camera("static0").timestamps, [0.0, 0.1, 0.2, 0.3])
-    assert_kept_frames(original, loaded, [0, 1, 3, 5])
-    assert loaded.notes == [
-        "camera static0: timestamps (cameras/static0/timestamps.npy) repeat at frame 2 (0.100 s twice); "
-        "dropped 2 of 6 frames that were not later than an earlier frame"
+        f"camera static0: timestamps (cameras/static0/timestamps.npy) {note} that were not later than an earlier frame"
     ]
 
 
