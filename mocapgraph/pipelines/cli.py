@@ -148,6 +148,24 @@ def cmd_demo(args) -> None:
     print(f"wrote {path.resolve()}")
 
 
+def cmd_priors_train_pose(args) -> None:
+    from mocapgraph.data_tools.cmu_motion import motion_dir
+    from mocapgraph.priors.training import train_pose_prior
+
+    def progress(message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+
+    directory = args.motion or motion_dir()
+    gmm = train_pose_prior(directory, _body(args), components=args.components, seed=args.seed, progress=progress)
+    path = gmm.save(args.out)
+    info = gmm.info
+    print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {info['val_poses']} poses")
+    print(f"  mean log-likelihood       {info['val_mean_log_likelihood']:.2f} nats (training poses: {info['train_mean_log_likelihood']:.2f})")
+    print(f"  nearest-mean geodesic     {info['val_nearest_mean_geodesic_rad']:.3f} rad per joint")
+    print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s EM")
+    print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KB)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from mocapgraph.data_tools.capture_cli import add_detect_parser, add_import_parser
 
@@ -244,6 +262,20 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.set_defaults(func=cmd_eval)
 
     add_detect_parser(sub)
+
+    priors = sub.add_parser("priors", help="learned priors: training").add_subparsers(
+        dest="priors_command", required=True, metavar="SUBCOMMAND"
+    )
+    train = priors.add_parser("train", help="train a prior on CMU motion").add_subparsers(
+        dest="prior", required=True, metavar="PRIOR"
+    )
+    train_pose = train.add_parser("pose", help="Gaussian-mixture pose prior (docs/priors.md)")
+    train_pose.add_argument("--motion", type=Path, metavar="DIR", help="CMU motion directory (default ../shared/motion/cmu_train)")
+    train_pose.add_argument("--out", type=Path, required=True, metavar="FILE", help=".npz file to write")
+    train_pose.add_argument("--components", type=int, default=8, help="mixture components (default 8)")
+    train_pose.add_argument("--seed", type=int, default=0, help="seed of the initialisation and the subject split (default 0)")
+    _add_body_args(train_pose)
+    train_pose.set_defaults(func=cmd_priors_train_pose)
 
     demo = sub.add_parser("demo", help="pose the default body and draw it (grows with the pipelines)")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
