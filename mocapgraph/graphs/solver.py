@@ -357,7 +357,9 @@ class _Projection:
         return np.flatnonzero(np.abs(taken - wanted) > 1e-9 * (1.0 + np.abs(wanted)))
 
     def unit(self, dim: int) -> gtsam.noiseModel.Base:
-        return self.units.setdefault(dim, gtsam.noiseModel.Unit.Create(dim))
+        if dim not in self.units:
+            self.units[dim] = gtsam.noiseModel.Unit.Create(dim)
+        return self.units[dim]
 
     def with_holds(self, system: gtsam.GaussianFactorGraph, held: dict[int, float]) -> gtsam.GaussianFactorGraph:
         if not held:
