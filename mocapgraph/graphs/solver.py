@@ -383,9 +383,11 @@ class _Projection:
         indices = np.array(sorted(held))
         probe = flat.copy()
         probe[indices] -= 1e-6 * (1.0 + np.abs(flat[indices])) * np.sign(gradient[indices])
-        probe_delta = gtsam.VectorValues()
-        for key, a, b in zip(self.keys, self.offsets[:-1], self.offsets[1:]):
-            probe_delta.insert(key, probe[a:b])
+        moved = gtsam.VectorValues()  # only the variables owning held components differ from delta
+        for owner in np.unique(self.owner[indices]):
+            moved.insert(self.keys[owner], probe[self.offsets[owner] : self.offsets[owner + 1]])
+        probe_delta = gtsam.VectorValues(delta)
+        probe_delta.update(moved)
         clamped = set(self.moved(probe_delta, self.apply(values, probe_delta)[1]).tolist())
         return [int(i) for i in indices if gradient[i] != 0.0 and i not in clamped]
 
