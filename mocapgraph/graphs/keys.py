@@ -11,6 +11,8 @@ GTSAM keys are ``gtsam.symbol(char, index)``:
 | common world-frame offset of camera ``c``'s GPS/IMU prior | ``camera_offset_key(c)`` = ``symbol('o', c)`` | ``gtsam.Pose3`` |
 | vehicle navigation state ``n`` (GPS/IMU fusion, per vehicle graph) | ``nav_keys(n)`` = ``symbol('x'|'v'|'i', n)`` | ``Pose3``, ``Vector3``, ``imuBias.ConstantBias`` |
 | GPS/barometer offsets at navigation state ``n`` (slow sensor drift) | ``drift_key(n)`` = ``symbol('d', n)`` | ``Vector(4)`` |
+| pose-prior latent of body state ``i`` (pose VAE) | ``pose_latent_key(i)`` = ``symbol('z', i)`` | ``Vector(L)`` |
+| motion-prior latent of window ``w`` (motion VAE) | ``motion_latent_key(w)`` = ``symbol('m', w)`` | ``Vector(L)`` |
 
 Body states are numbered in time order; cameras in capture order, frames in each camera's order.
 """
@@ -43,6 +45,14 @@ def camera_key(camera: int, frame: int) -> int:
 
 def camera_offset_key(camera: int) -> int:
     return gtsam.symbol("o", camera)
+
+
+def pose_latent_key(i: int) -> int:
+    return gtsam.symbol("z", i)
+
+
+def motion_latent_key(w: int) -> int:
+    return gtsam.symbol("m", w)
 
 
 def nav_keys(n: int) -> tuple[int, int, int]:
