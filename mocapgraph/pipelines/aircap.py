@@ -44,9 +44,12 @@ from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import SYNC_POLICIES, FrameGroup, frame_groups
 from mocapgraph.graphs.keys import camera_key, camera_offset_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions, solve_staged
+from mocapgraph.priors import load_default_pose_gmm, pose_gmm_factor
 
 MODES = ("sequence", "per-frame")
 CAMERA_MODES = ("refine", "prior", "fixed")
+POSE_PRIORS = ("none", "gmm")
+MOTION_PRIORS = ("none", "vae")
 
 
 @dataclass
@@ -60,7 +63,8 @@ class AircapOptions:
     detectors: tuple[str, ...] | None = None
     gm_sigma_px: float = 40.0
     noise_px: float = 3.0
-    pose_prior_sigma_rad: float = 0.8
+    pose_prior_sigma_rad: float = 0.8  # the weak regulariser every state keeps, on all 21 joints
+    pose_prior: str = "none"  # learned pose prior: "gmm" (docs/priors.md)
     shape_prior_sigma: float = 0.25
     root_sigma_rad_s: float = 4.0
     root_sigma_m_s: float = 3.0
@@ -86,6 +90,8 @@ class AircapOptions:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
         if self.sync is not None and self.sync not in SYNC_POLICIES:
             raise MocapgraphError(f"sync {self.sync!r}: choose one of {', '.join(SYNC_POLICIES)}")
+        if self.pose_prior not in POSE_PRIORS:
+            raise MocapgraphError(f"pose_prior {self.pose_prior!r}: choose one of {', '.join(POSE_PRIORS)}")
         if not 0.0 < self.camera_prior_white_fraction < 1.0:
             raise MocapgraphError(f"camera_prior_white_fraction: must lie in (0, 1), got {self.camera_prior_white_fraction}")
         if not (isinstance(self.workers, int) and self.workers >= 1):
@@ -205,6 +211,7 @@ class _Problem:
         self.intrinsics = [np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) for c in capture.cameras]
         self.refine = options.cameras == "refine"
         self.common: dict[int, np.ndarray] = {}  # camera index -> common_covariance
+        self.pose_gmm = load_default_pose_gmm() if options.pose_prior == "gmm" else None
 
     def camera_prior(self, c: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         poses, cov = self.priors[self.capture.cameras[c].name]
@@ -227,7 +234,13 @@ class _Problem:
                     fixed_shape=shape[1], **between,
                 )  # fmt: skip
             )
-        graph.add(pose_regularizer_factor(pose_key(i), o.pose_prior_sigma_rad))
+        self.add_pose_prior(graph, i)
+
+    def add_pose_prior(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
+        """The weak regulariser on every joint of state ``i`` and the learned pose prior, if any."""
+        graph.add(pose_regularizer_factor(pose_key(i), self.options.pose_prior_sigma_rad))
+        if self.pose_gmm is not None:
+            graph.add(pose_gmm_factor(pose_key(i), self.pose_gmm))
 
     def camera_members(self, states) -> list[tuple[int, int]]:
         return sorted({(obs.camera, obs.frame) for s in states for obs in s.observations})
@@ -447,7 +460,7 @@ def sequence_graph(problem: _Problem, estimate: _Estimate) -> tuple[gtsam.Nonlin
         if state.observations:
             problem.add_state(graph, i, state)
         else:
-            graph.add(pose_regularizer_factor(pose_key(i), o.pose_prior_sigma_rad))
+            problem.add_pose_prior(graph, i)
         if i > 0:
             dt = max(times[i] - times[i - 1], 1e-3)
             graph.add(root_smoothness_factor(root_key(i - 1), root_key(i), dt, (o.root_sigma_rad_s, o.root_sigma_m_s)))

@@ -75,7 +75,7 @@ def cmd_run_aircap(args) -> None:
     options = AircapOptions(
         mode=args.mode, cameras=args.cameras, sync=args.sync, grid_hz=args.grid_hz, gm_sigma_px=args.gm_sigma_px, workers=args.workers,
         detectors=tuple(args.detectors.split(",")) if args.detectors else None,
-        covariances=not args.no_covariances, progress=not args.quiet,
+        covariances=not args.no_covariances, progress=not args.quiet, pose_prior=args.pose_prior,
     )  # fmt: skip
     run_aircap_command(args.capture, args.out, options, overwrite=args.overwrite)
     print(f"wrote {args.out}")
@@ -248,6 +248,10 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     aircap.add_argument("--grid-hz", type=float, default=30.0, help="body states per second with --sync grid (default 30)")
     aircap.add_argument("--workers", type=int, default=2, help="processes for the per-frame pass (default 2)")
+    aircap.add_argument(
+        "--pose-prior", choices=("none", "gmm"), default="none",
+        help="learned pose prior on every state (docs/priors.md); default none",
+    )  # fmt: skip
     aircap.add_argument("--detectors", help="comma-separated detector names (default: all)")
     aircap.add_argument("--gm-sigma-px", type=float, default=40.0, help="Geman-McClure scale in pixels (default 40)")
     aircap.add_argument("--no-covariances", action="store_true", help="skip the marginal covariances")

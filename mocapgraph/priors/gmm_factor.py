@@ -27,37 +27,50 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.pose_gmm import PoseGMM
 
 
 class _MaxMixture:
     """The factor's error function: best component, whitened residual, constant row."""
 
-    def __init__(self, gmm: PoseGMM):
+    def __init__(self, gmm: PoseGMM, pose_dim: int):
         self.gmm = gmm
         self.costs = gmm.component_costs()
         self.offsets = np.sqrt(2.0 * (self.costs - self.costs.min()))
-        # Column-major P_kᵀ with a zero last row: GTSAM copies Fortran-ordered arrays as they are.
-        zero_row = np.zeros((1, gmm.dim))
-        self.jacobians = [np.asfortranarray(np.vstack([P.T, zero_row])) for P in gmm.precisions_cholesky]
+        # P_kᵀ in the modelled columns of the whole pose, a zero last row; column-major because
+        # GTSAM copies Fortran-ordered arrays as they are.
+        self.jacobians = []
+        for P in gmm.precisions_cholesky:
+            J = np.zeros((gmm.dim + 1, pose_dim), order="F")
+            J[:-1, gmm.dims] = P.T
+            self.jacobians.append(J)
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
-        whitened = self.gmm.whitened(values.atVector(this.keys()[0]))
+        whitened = self.gmm.whitened(values.atVector(this.keys()[0])[self.gmm.dims])
         k = int(np.argmin(0.5 * np.square(whitened).sum(axis=1) + self.costs))
         if H is not None:
             H[0] = self.jacobians[k]
         return np.append(whitened[k], self.offsets[k])
 
 
-def pose_gmm_factor(pose_key: int, gmm: PoseGMM) -> gtsam.CustomFactor:
+def pose_gmm_factor(pose_key: int, gmm: PoseGMM, pose_dim: int | None = None) -> gtsam.CustomFactor:
     """Max-mixture Gaussian-mixture prior on one state's joint rotations.
 
     Args:
-        pose_key: the state's ``Vector(D)`` key (``mocapgraph.graphs.keys.pose_key``; D = 63).
-        gmm: the mixture, e.g. :func:`mocapgraph.priors.load_default_pose_gmm`.
+        pose_key: the state's pose key (``mocapgraph.graphs.keys.pose_key``, ``Vector(63)``).
+        gmm: the mixture, e.g. :func:`mocapgraph.priors.load_default_pose_gmm`; when it models
+            some joints only (``gmm.joints``), the factor touches only their dimensions.
+        pose_dim: length of the pose variable; default 63 for a mixture over some joints, else
+            the mixture's dimension.
 
     Returns:
         a ``CustomFactor`` with a unit noise model and ``D + 1`` residual rows (see the module
         docstring), so ``factor.error(values) = −log max_k w_k N_k(θ) − D/2 log 2π − min_k c_k``.
     """
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(gmm.dim + 1), [int(pose_key)], _MaxMixture(gmm))
+    if pose_dim is None:
+        pose_dim = 3 * (NUM_JOINTS - 1) if gmm.joints is not None else gmm.dim
+    if pose_dim <= gmm.dims.max():
+        raise MocapgraphError(f"pose_gmm_factor: a pose of {pose_dim} values has no dimension {gmm.dims.max()}")
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(gmm.dim + 1), [int(pose_key)], _MaxMixture(gmm, pose_dim))

@@ -3,7 +3,9 @@
 A pose is the 21 local joint rotations of the body as axis-angle vectors, flattened to ``(63,)``
 in SMPL joint order (``mocapgraph.body.skeleton``), each in its parent joint's frame, radians;
 all zeros is the T-pose. It is exactly the ``pose_key`` variable of the factor graphs. The code
-below works for any dimension ``D`` (tests use small ones); the pose prior has ``D = 63``.
+below works for any dimension ``D`` (tests use small ones). The shipped prior models the 16 joints
+that move in its training data (``joints``), ``D = 48`` of the 63; it leaves the other joints'
+dimensions to the graphs' weak regulariser (``docs/priors.md``).
 
 Density: ``p(θ) = Σ_k w_k N(θ; μ_k, Σ_k)``. Each component is stored as its covariance and
 used through ``P_k``, the upper-triangular Cholesky factor of its precision
@@ -27,6 +29,7 @@ from mocapgraph.errors import MocapgraphError
 
 FORMAT_VERSION = 1
 _KEYS = ("format_version", "body_model", "weights", "means", "covariances", "info")
+_OPTIONAL_KEYS = ("joints",)
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,6 +42,10 @@ class PoseGMM:
         covariances: ``(M, D, D)`` symmetric positive definite (rad²).
         body_model: name of the body model whose joint frames the poses are in (e.g. ``"anny"``).
         info: free-form training record (data, seed, held-out numbers), saved with the file.
+        joints: indices of the modelled joints (``D = 3·len(joints)``) when the mixture covers
+            only part of a pose: then poses passed in are whole ``(N, 3·J)`` vectors and
+            :meth:`select` picks the modelled dimensions; None when the mixture covers the whole
+            vector.
     """
 
     weights: np.ndarray
@@ -46,6 +53,7 @@ class PoseGMM:
     covariances: np.ndarray
     body_model: str = "anny"
     info: dict = field(default_factory=dict)
+    joints: np.ndarray | None = None
     precisions_cholesky: np.ndarray = field(init=False, repr=False)
     """``(M, D, D)`` upper-triangular ``P_k`` with ``P_k P_kᵀ = Σ_k⁻¹``."""
     log_det_cov: np.ndarray = field(init=False, repr=False)
@@ -62,6 +70,11 @@ class PoseGMM:
             )
         if not all(np.all(np.isfinite(a)) for a in (w, mu, cov)):
             raise MocapgraphError("PoseGMM: weights, means and covariances must be finite")
+        if self.joints is not None:
+            joints = np.asarray(self.joints, dtype=int)
+            if joints.ndim != 1 or 3 * len(joints) != D or len(np.unique(joints)) != len(joints) or np.any(joints < 0):
+                raise MocapgraphError(f"PoseGMM: joints must be {D // 3} distinct indices >= 0 for D = {D}, got {self.joints!r}")
+            object.__setattr__(self, "joints", joints)
         if not (np.all(w > 0) and abs(w.sum() - 1.0) < 1e-6):
             raise MocapgraphError("PoseGMM: weights must be positive and sum to 1")
         if not np.allclose(cov, np.swapaxes(cov, 1, 2), rtol=0.0, atol=1e-10 * np.abs(cov).max()):
@@ -88,6 +101,22 @@ class PoseGMM:
     def dim(self) -> int:
         return self.means.shape[1]
 
+    @property
+    def dims(self) -> np.ndarray:
+        """``(D,)`` indices of the modelled dimensions in a whole pose vector."""
+        if self.joints is None:
+            return np.arange(self.dim)
+        return (3 * self.joints[:, None] + np.arange(3)).ravel()
+
+    def select(self, poses) -> np.ndarray:
+        """``(N, D)``: the modelled dimensions of ``poses`` (``(N, 3·J)`` or ``(N, J, 3)``)."""
+        x = _as_poses(poses)
+        if self.joints is None:
+            return _as_poses(x, self.dim)
+        if x.shape[1] <= self.dims.max():
+            raise MocapgraphError(f"poses: the mixture models joints up to {self.joints.max()}, got shape {np.shape(poses)}")
+        return x[:, self.dims]
+
     def whitened(self, pose: np.ndarray) -> np.ndarray:
         """``(M, D)``: ``P_kᵀ(θ − μ_k)`` of one pose ``(D,)`` for every component."""
         return np.einsum("kd,kde->ke", pose - self.means, self.precisions_cholesky)
@@ -103,11 +132,11 @@ class PoseGMM:
         return -0.5 * maha - self.component_costs() - 0.5 * self.dim * np.log(2 * np.pi)
 
     def log_likelihood(self, poses: np.ndarray) -> np.ndarray:
-        """``(N,)`` log density of each pose ``(N, D)`` under the mixture (nats)."""
-        return logsumexp(self.component_log_densities(_as_poses(poses, self.dim)), axis=1)
+        """``(N,)`` log density of each pose under the mixture (nats); see :meth:`select`."""
+        return logsumexp(self.component_log_densities(self.select(poses)), axis=1)
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``(n, D)`` poses drawn from the mixture with ``rng``."""
+        """``(n, D)`` draws from the mixture with ``rng`` (the modelled dimensions only)."""
         k = rng.choice(self.components, size=n, p=self.weights)
         z = rng.standard_normal((n, self.dim))
         return self.means[k] + np.einsum("nde,ne->nd", self._chol[k], z)
@@ -120,6 +149,7 @@ class PoseGMM:
         np.savez(
             tmp, format_version=FORMAT_VERSION, body_model=self.body_model, weights=self.weights,
             means=self.means, covariances=self.covariances, info=json.dumps(self.info),
+            **({} if self.joints is None else {"joints": self.joints}),
         )  # fmt: skip
         os.replace(tmp, path)
         return path
@@ -140,10 +170,11 @@ class PoseGMM:
                     raise MocapgraphError(f"{path}: format_version {version}, this mocapgraph reads {FORMAT_VERSION}")
                 arrays = {k: d[k].astype(float) for k in ("weights", "means", "covariances")}
                 body_model, info = str(d["body_model"]), json.loads(str(d["info"]))
+                joints = d["joints"].astype(int) if "joints" in d.files else None
         except (OSError, ValueError) as exc:
             raise MocapgraphError(f"{path}: not a readable pose GMM .npz ({exc})") from None
         try:
-            return cls(**arrays, body_model=body_model, info=info)
+            return cls(**arrays, body_model=body_model, info=info, joints=joints)
         except MocapgraphError as exc:
             raise MocapgraphError(f"{path}: {exc}") from None
 
@@ -177,6 +208,7 @@ def fit_pose_gmm(
     tol: float = 1e-3,
     body_model: str = "anny",
     progress: Callable[[int, float], None] | None = None,
+    joints=None,
 ) -> PoseGMM:
     """Fit a full-covariance Gaussian mixture by EM.
 
@@ -190,11 +222,15 @@ def fit_pose_gmm(
         tol: stop when the mean log-likelihood per sample improves by less than this (nats).
         body_model: recorded in the mixture (the joint frames the poses are in).
         progress: called as ``progress(iteration, mean_log_likelihood)`` after each E-step.
+        joints: model only these joints of whole poses (``PoseGMM.joints``); None: every dimension.
 
     Returns:
         the fitted :class:`PoseGMM`.
     """
     x = _as_poses(poses)
+    if joints is not None:
+        joints = np.asarray(joints, dtype=int)
+        x = x[:, (3 * joints[:, None] + np.arange(3)).ravel()]
     N, D = x.shape
     if components < 1:
         raise MocapgraphError(f"fit_pose_gmm: components must be >= 1, got {components}")
@@ -209,7 +245,7 @@ def fit_pose_gmm(
     resp = np.eye(components)[nearest]
     previous = -np.inf
     for it in range(iterations):
-        gmm = _m_step(x, resp, reg, body_model)
+        gmm = _m_step(x, resp, reg, body_model, joints)
         log_dens = gmm.component_log_densities(x)
         log_lik = logsumexp(log_dens, axis=1)
         resp = np.exp(log_dens - log_lik[:, None])
@@ -219,10 +255,10 @@ def fit_pose_gmm(
         if mean_ll - previous < tol:
             break
         previous = mean_ll
-    return _m_step(x, resp, reg, body_model)
+    return _m_step(x, resp, reg, body_model, joints)
 
 
-def _m_step(x: np.ndarray, resp: np.ndarray, reg: float, body_model: str) -> PoseGMM:
+def _m_step(x: np.ndarray, resp: np.ndarray, reg: float, body_model: str, joints) -> PoseGMM:
     """Weights, means and regularised covariances from responsibilities ``(N, M)``."""
     # A tiny floor keeps a component that lost all its samples defined (mean 0, covariance
     # reg·I, weight ~1e-15) instead of dividing by zero.
@@ -233,4 +269,4 @@ def _m_step(x: np.ndarray, resp: np.ndarray, reg: float, body_model: str) -> Pos
         d = x - means[k]
         cov[k] = (resp[:, k, None] * d).T @ d / nk[k]
     cov += reg * np.eye(x.shape[1])
-    return PoseGMM(nk / nk.sum(), means, cov, body_model)
+    return PoseGMM(nk / nk.sum(), means, cov, body_model, joints=joints)

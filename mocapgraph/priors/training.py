@@ -19,6 +19,7 @@ import numpy as np
 
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.body.skeleton import JOINT_NAMES
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.pose_gmm import PoseGMM, fit_pose_gmm
 
@@ -57,6 +58,18 @@ def load_pose_frames(motion_dir: str | Path, body: BodyModel, stride: int = 4, p
     return PoseFrames(np.concatenate(poses), np.concatenate(subjects))
 
 
+def moving_joints(poses: np.ndarray, tol_rad: float = 1e-3) -> np.ndarray:
+    """Indices (into the 21 joints) of the joints whose rotation varies in ``poses (N, 63)``.
+
+    A joint counts as moving when some axis-angle component has a standard deviation above
+    ``tol_rad``. The retargeted CMU takes never move spine3, the feet or the collars (the takes
+    animate no collars and no toes, and spine3 follows the chest); a prior fitted on them would pin
+    those joints to the retargeting's constants, so the learned priors model only the others.
+    """
+    std = np.asarray(poses, dtype=float).reshape(len(poses), -1, 3).std(axis=0)
+    return np.flatnonzero(std.max(axis=1) > tol_rad)
+
+
 def split_by_subject(subjects: np.ndarray, val_fraction: float, seed: int) -> np.ndarray:
     """``(N,)`` bool, True for validation: a seeded ``val_fraction`` of the subjects (at least one)."""
     unique = np.unique(subjects)
@@ -68,8 +81,9 @@ def split_by_subject(subjects: np.ndarray, val_fraction: float, seed: int) -> np
 
 
 def nearest_mean_geodesic(gmm: PoseGMM, poses: np.ndarray) -> np.ndarray:
-    """``(N,)`` radians: per pose, the smallest over components of the mean over the 21 joints of
-    the rotation angle between the pose's and the component mean's joint rotation."""
+    """``(N,)`` radians: per pose, the smallest over components of the mean over the modelled joints
+    of the rotation angle between the pose's and the component mean's joint rotation."""
+    poses = gmm.select(poses)
     R = rotvec_to_matrix(poses.reshape(len(poses), -1, 3))
     per_component = []
     for mean in gmm.means:
@@ -98,6 +112,7 @@ def train_pose_prior(
     load_s = time.perf_counter() - start
     val = split_by_subject(frames.subjects, val_fraction, seed)
     train_poses, val_poses = frames.poses[~val], frames.poses[val]
+    joints = moving_joints(train_poses)
     if progress is not None:
         progress(f"{len(train_poses)} training poses, {len(val_poses)} held-out poses "
                  f"(subjects {', '.join(str(s) for s in np.unique(frames.subjects[val]))})")  # fmt: skip
@@ -107,11 +122,12 @@ def train_pose_prior(
             progress(f"EM iteration {iteration}: mean log-likelihood {mean_ll:.2f}")
 
     start = time.perf_counter()
-    gmm = fit_pose_gmm(train_poses, components, seed, body_model=body.name, progress=em_progress)
+    gmm = fit_pose_gmm(train_poses, components, seed, body_model=body.name, progress=em_progress, joints=joints)
     fit_s = time.perf_counter() - start
     info = {
         "data": Path(motion_dir).name, "stride": stride, "seed": seed, "components": components,
         "train_poses": len(train_poses), "val_poses": len(val_poses),
+        "modelled_joints": [JOINT_NAMES[1 + j] for j in joints],
         "val_subjects": [int(s) for s in np.unique(frames.subjects[val])],
         "train_mean_log_likelihood": float(gmm.log_likelihood(train_poses).mean()),
         "val_mean_log_likelihood": float(gmm.log_likelihood(val_poses).mean()),
