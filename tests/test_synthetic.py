@@ -56,6 +56,23 @@ def test_same_seed_same_capture_other_seed_other_capture():
     assert not np.allclose(a.ground_truth.joints, c.ground_truth.joints)
 
 
+def test_noise_scale_multiplies_the_keypoint_noise():
+    """The same seed draws the same standard-normal noise, so the detections' distance from the
+    noise-free ones grows in proportion to the scale."""
+    clean, base, heavy = (synthesize("rich", seed=2, duration_s=0.5, noise_scale=s) for s in (0.0, 1.0, 3.0))
+    assert heavy.metadata["noise_scale"] == 3.0
+    offsets = {}
+    for name, capture in (("base", base), ("heavy", heavy)):
+        d = [np.linalg.norm(c.detectors["coco_hrnet"].keypoints[..., :2] - r.detectors["coco_hrnet"].keypoints[..., :2], axis=-1)
+             for c, r in zip(capture.cameras, clean.cameras)]  # fmt: skip
+        d = np.concatenate([x.ravel() for x in d])
+        offsets[name] = np.median(d[np.isfinite(d)])
+    assert offsets["base"] > 0.5
+    assert offsets["heavy"] / offsets["base"] == pytest.approx(3.0, rel=0.1)
+    with pytest.raises(MocapgraphError, match="noise_scale"):
+        synthesize("rich", noise_scale=-1.0)
+
+
 def test_bad_requests_are_clear_errors():
     with pytest.raises(MocapgraphError, match="unknown scenario preset 'studio'"):
         synthesize("studio")
