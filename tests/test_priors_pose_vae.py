@@ -1,15 +1,19 @@
 """The pose VAE: rotation maps against scipy, a tiny VAE learning a low-dimensional pose family,
-determinism, the file round trip and its errors, and the shipped weights."""
+determinism, the file round trip and its errors, the latent-variable factor's Jacobians, cost and
+batching, a Levenberg-Marquardt denoise, and the shipped weights."""
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
+from scipy.stats import multivariate_normal
 
 from mocapgraph.body import load_body_model
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.graphs.keys import pose_key, pose_latent_key
 from mocapgraph.pipelines.aircap import neutral_pose
 from mocapgraph.priors.pose_vae import (
     PoseVAE,
@@ -20,7 +24,9 @@ from mocapgraph.priors.pose_vae import (
     sixd_to_rotmat,
     train_pose_vae,
 )
+from mocapgraph.priors.pose_vae_factor import PoseVAEPrior
 from test_cmu_motion import write_take
+from test_factors import max_rel_diff, numerical_jacobian
 
 MOVING = np.array([0, 1, 3, 15, 16, 17])  # hips, spine1, both shoulders, left elbow
 TINY = dict(latent=4, width=64, epochs=60, batch=128, recon_sigma=0.2)
@@ -202,6 +208,72 @@ def test_train_pose_vae_on_a_tiny_motion_directory(tmp_path):
     assert "loaded 5/5 takes" in lines and lines[-1].startswith("epoch 2/2: ")
     with pytest.raises(MocapgraphError, match="motion directory not found"):
         train_pose_vae(tmp_path / "nowhere", load_body_model("anny"))
+
+
+# ---------------------------------------------------------------------------------------------
+# The factor
+
+
+def prior_graph(vae: PoseVAE, poses: np.ndarray) -> tuple[PoseVAEPrior, gtsam.NonlinearFactorGraph, gtsam.Values]:
+    prior = PoseVAEPrior(vae, range(len(poses)))
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for i, theta in enumerate(poses):
+        values.insert(pose_key(i), theta)
+    prior.add_to(graph, values, poses)
+    return prior, graph, values
+
+
+def test_factor_jacobians_match_central_differences(tiny_vae):
+    vae = PoseVAE(tiny_vae.joints, tiny_vae.static_pose, 4, 64, tiny_vae.sigma).double()
+    vae.load_state_dict(tiny_vae.state_dict())
+    poses = pose_family(3, seed=8) + np.random.default_rng(9).normal(scale=0.1, size=(3, 63))
+    _, graph, values = prior_graph(vae, poses)
+    for f in range(1, graph.size(), 2):  # the (θ, z) factors
+        factor = graph.at(f)
+        A, b = factor.linearize(values).jacobian()
+        assert A.shape == (18, 63 + 4)
+        np.testing.assert_allclose(b, -factor.whitenedError(values), atol=1e-12)
+        # The batched decoder feeds the network float32 latents, so the step is 1e-3, not 1e-6.
+        assert max_rel_diff(A, numerical_jacobian(factor.whitenedError, factor, values, h=1e-3)) < 1e-4
+
+
+def test_factor_cost_is_the_negative_log_joint_density(tiny_vae):
+    poses = pose_family(4, seed=10) + np.random.default_rng(11).normal(scale=0.1, size=(4, 63))
+    _, graph, values = prior_graph(tiny_vae, poses)
+    L, dims, sigma = 4, tiny_vae.dims, tiny_vae.sigma
+    const = 0.5 * (L + len(dims)) * np.log(2 * np.pi) + np.log(sigma).sum()
+    for i, theta in enumerate(poses):
+        z = values.atVector(pose_latent_key(i))
+        cost = graph.at(2 * i).error(values) + graph.at(2 * i + 1).error(values)
+        log_joint = multivariate_normal(np.zeros(L)).logpdf(z) + multivariate_normal(
+            tiny_vae.decode(z[None])[0, dims], np.diag(sigma**2)
+        ).logpdf(theta[dims])
+        np.testing.assert_allclose(cost, -log_joint - const, rtol=1e-5)
+
+
+def test_one_batched_network_run_serves_every_state(tiny_vae):
+    prior, graph, values = prior_graph(tiny_vae, pose_family(30, seed=12))
+    graph.linearize(values)
+    assert prior.decoder.evaluations == 1
+    graph.error(values)  # the same latents: the cache answers
+    assert prior.decoder.evaluations == 1
+    values.update(pose_latent_key(7), np.zeros(4))
+    graph.error(values)
+    assert prior.decoder.evaluations == 2
+    with pytest.raises(MocapgraphError, match="state 30 is not one of the prior's 30 states"):
+        prior.factors(30)
+
+
+def test_levenberg_marquardt_pulls_noisy_poses_onto_the_family(tiny_vae):
+    truth = pose_family(40, seed=13)
+    noisy = truth + np.random.default_rng(14).normal(scale=0.15, size=truth.shape)
+    _, graph, values = prior_graph(tiny_vae, noisy)
+    for i, theta in enumerate(noisy):  # the "measurement" of each pose
+        graph.add(gtsam.PriorFactorVector(pose_key(i), theta, gtsam.noiseModel.Isotropic.Sigma(63, 0.15)))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    fitted = np.stack([result.atVector(pose_key(i)) for i in range(len(truth))])
+    before, after = mean_geodesic(noisy, truth, MOVING), mean_geodesic(fitted, truth, MOVING)
+    assert after < 0.6 * before
 
 
 # ---------------------------------------------------------------------------------------------
