@@ -1,6 +1,6 @@
 """The pose VAE: rotation maps against scipy, a tiny VAE learning a low-dimensional pose family,
 determinism, the file round trip and its errors, the latent-variable factor's Jacobians, cost and
-batching, a Levenberg-Marquardt denoise, and the shipped weights."""
+batching, a Levenberg-Marquardt denoise, the shipped weights and the sample grid."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.keys import pose_key, pose_latent_key
 from mocapgraph.pipelines.aircap import neutral_pose
+from mocapgraph.priors.plots import pose_grid_png
 from mocapgraph.priors.pose_vae import (
     PoseVAE,
     fit_pose_vae,
@@ -291,3 +292,8 @@ def test_shipped_weights_prefer_a_standing_pose_to_a_corrupted_one():
     assert elbo_standing > elbo_corrupted + 100
     err_standing, err_corrupted = vae.geodesic_error(np.stack([standing, corrupted]))
     assert err_standing < 0.5 * err_corrupted
+
+
+def test_pose_grid_png(tmp_path):
+    path = pose_grid_png(pose_family(4, seed=15), tmp_path / "grid.png", load_body_model("anny"), title="four")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and not list(tmp_path.glob("*.tmp.png"))
