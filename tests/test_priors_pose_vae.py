@@ -15,6 +15,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.keys import pose_key, pose_latent_key
 from mocapgraph.pipelines.aircap import neutral_pose
+from mocapgraph.pipelines.cli import main
 from mocapgraph.priors.plots import pose_grid_png
 from mocapgraph.priors.pose_vae import (
     PoseVAE,
@@ -198,12 +199,18 @@ def test_save_load_round_trip_and_errors(tiny_vae, tmp_path):
         PoseVAE.load(tmp_path / "junk.npz")
 
 
-def test_train_pose_vae_on_a_tiny_motion_directory(tmp_path):
+def test_train_pose_vae_on_a_tiny_motion_directory(tmp_path, capsys):
     for i, subject in enumerate((1, 2, 3, 4, 6)):
         write_take(tmp_path / f"cmu_{subject:02d}_01.npz", frames=40, seed=i)
     lines = []
     vae = train_pose_vae(tmp_path, load_body_model("anny"), latent=3, width=16, epochs=2, batch=16, progress=lines.append)
     info = vae.info
+    out = tmp_path / "vae.npz"
+    args = ["priors", "train", "pose", "--model", "vae", "--motion", str(tmp_path), "--out", str(out), "--latent", "3", "--width", "16", "--epochs", "2"]
+    assert main(args) == 0
+    printed = capsys.readouterr()
+    assert "epoch 2/2: " in printed.err and "reconstruction geodesic" in printed.out
+    assert PoseVAE.load(out).latent == 3
     assert info["train_poses"] + info["val_poses"] == 50 and info["data"] == tmp_path.name and info["stride"] == 4
     assert set(info["val_subjects"]) < {1, 2, 3, 4, 6} and info["val_geodesic_err_rad"] > 0
     assert "loaded 5/5 takes" in lines and lines[-1].startswith("epoch 2/2: ")

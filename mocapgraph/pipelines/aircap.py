@@ -42,13 +42,15 @@ from mocapgraph.factors.priors import (
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import SYNC_POLICIES, FrameGroup, frame_groups
-from mocapgraph.graphs.keys import camera_key, camera_offset_key, pose_key, root_key, shape_key
+from mocapgraph.graphs.keys import camera_key, camera_offset_key, pose_key, pose_latent_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions, solve_staged
 from mocapgraph.priors import load_default_pose_gmm, pose_gmm_factor
+from mocapgraph.priors.pose_vae import load_default_pose_vae
+from mocapgraph.priors.pose_vae_factor import PoseVAEPrior
 
 MODES = ("sequence", "per-frame")
 CAMERA_MODES = ("refine", "prior", "fixed")
-POSE_PRIORS = ("none", "gmm")
+POSE_PRIORS = ("none", "gmm", "vae")
 MOTION_PRIORS = ("none", "vae")
 
 
@@ -64,7 +66,9 @@ class AircapOptions:
     gm_sigma_px: float = 40.0
     noise_px: float = 3.0
     pose_prior_sigma_rad: float = 0.8  # the weak regulariser every state keeps, on all 21 joints
-    pose_prior: str = "none"  # learned pose prior: "gmm" (docs/priors.md)
+    # Learned pose prior (docs/priors.md): "gmm" on every graph; "vae" on the sequence fit only
+    # (its network runs once per linearisation for all states; per state it would cost 16 ms).
+    pose_prior: str = "none"
     shape_prior_sigma: float = 0.25
     root_sigma_rad_s: float = 4.0
     root_sigma_m_s: float = 3.0
@@ -92,6 +96,8 @@ class AircapOptions:
             raise MocapgraphError(f"sync {self.sync!r}: choose one of {', '.join(SYNC_POLICIES)}")
         if self.pose_prior not in POSE_PRIORS:
             raise MocapgraphError(f"pose_prior {self.pose_prior!r}: choose one of {', '.join(POSE_PRIORS)}")
+        if self.mode == "per-frame" and self.pose_prior == "vae":
+            raise MocapgraphError("pose_prior 'vae' runs on the sequence fit: use mode 'sequence', or pose_prior 'gmm' per frame")
         if not 0.0 < self.camera_prior_white_fraction < 1.0:
             raise MocapgraphError(f"camera_prior_white_fraction: must lie in (0, 1), got {self.camera_prior_white_fraction}")
         if not (isinstance(self.workers, int) and self.workers >= 1):
@@ -212,6 +218,7 @@ class _Problem:
         self.refine = options.cameras == "refine"
         self.common: dict[int, np.ndarray] = {}  # camera index -> common_covariance
         self.pose_gmm = load_default_pose_gmm() if options.pose_prior == "gmm" else None
+        self.pose_vae = load_default_pose_vae() if options.pose_prior == "vae" else None
 
     def camera_prior(self, c: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         poses, cov = self.priors[self.capture.cameras[c].name]
@@ -287,7 +294,10 @@ class _Problem:
         chain keeps every clique to neighbouring states, where COLAMD's order grew faster than
         the sequence (solves 27 % faster at 60 s, 1.66 s against 2.29 s, measured).
         """
-        timed = [(s.group.time, 1, [root_key(i), pose_key(i)]) for i, s in enumerate(self.states)]
+        # A pose latent goes before its state: it touches that state alone, so eliminating it first
+        # adds no fill-in (last, it would ride along the whole chain).
+        latent = [pose_latent_key(i) for i in range(len(self.states))] if self.pose_vae is not None else None
+        timed = [(s.group.time, 1, ([latent[i]] if latent else []) + [root_key(i), pose_key(i)]) for i, s in enumerate(self.states)]
         if self.refine:
             cams = self.capture.cameras
             timed += [(cams[c].timestamps[j], 0, [camera_key(c, j)]) for c, j in self.camera_members(self.states)]
@@ -470,6 +480,8 @@ def sequence_graph(problem: _Problem, estimate: _Estimate) -> tuple[gtsam.Nonlin
             graph.add(pose_smoothness_factor([pose_key(i - 2), pose_key(i - 1), pose_key(i)], times[i - 2 : i + 1], o.pose_sigma_rad_s2))
     graph.add(shape_prior_factor(shape_key(), problem.body.default_shape, o.shape_prior_sigma))
     values = estimate.body_values()
+    if problem.pose_vae is not None:
+        PoseVAEPrior(problem.pose_vae, range(len(states))).add_to(graph, values, estimate.poses)
     if problem.refine:
         members = problem.camera_members(states)
         problem.add_camera_priors(graph, values, members)

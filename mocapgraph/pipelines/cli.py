@@ -148,21 +148,34 @@ def cmd_demo(args) -> None:
     print(f"wrote {path.resolve()}")
 
 
+def _progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
 def cmd_priors_train_pose(args) -> None:
     from mocapgraph.data_tools.cmu_motion import motion_dir
-    from mocapgraph.priors.training import train_pose_prior
-
-    def progress(message: str) -> None:
-        print(message, file=sys.stderr, flush=True)
 
     directory = args.motion or motion_dir()
-    gmm = train_pose_prior(directory, _body(args), components=args.components, seed=args.seed, progress=progress)
-    path = gmm.save(args.out)
-    info = gmm.info
-    print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {info['val_poses']} poses")
-    print(f"  mean log-likelihood       {info['val_mean_log_likelihood']:.2f} nats (training poses: {info['train_mean_log_likelihood']:.2f})")
-    print(f"  nearest-mean geodesic     {info['val_nearest_mean_geodesic_rad']:.3f} rad per joint")
-    print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s EM")
+    if args.model == "gmm":
+        from mocapgraph.priors.training import train_pose_prior
+
+        gmm = train_pose_prior(directory, _body(args), components=args.components, seed=args.seed, progress=_progress)
+        path = gmm.save(args.out)
+        info = gmm.info
+        print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {info['val_poses']} poses")
+        print(f"  mean log-likelihood       {info['val_mean_log_likelihood']:.2f} nats (training poses: {info['train_mean_log_likelihood']:.2f})")
+        print(f"  nearest-mean geodesic     {info['val_nearest_mean_geodesic_rad']:.3f} rad per joint")
+        print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s EM")
+    else:
+        from mocapgraph.priors.pose_vae import train_pose_vae
+
+        vae = train_pose_vae(directory, _body(args), latent=args.latent, width=args.width, epochs=args.epochs, seed=args.seed, progress=_progress)
+        path = vae.save(args.out, float16=True)
+        info = vae.info
+        print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {info['val_poses']} poses")
+        print(f"  reconstruction geodesic   {info['val_geodesic_err_rad']:.3f} rad per modelled joint")
+        print(f"  ELBO                      {info['val_elbo']:.2f} nats per pose")
+        print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s training")
     print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KB)")
 
 
@@ -249,7 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     aircap.add_argument("--grid-hz", type=float, default=30.0, help="body states per second with --sync grid (default 30)")
     aircap.add_argument("--workers", type=int, default=2, help="processes for the per-frame pass (default 2)")
     aircap.add_argument(
-        "--pose-prior", choices=("none", "gmm"), default="none",
+        "--pose-prior", choices=("none", "gmm", "vae"), default="none",
         help="learned pose prior on every state (docs/priors.md); default none",
     )  # fmt: skip
     aircap.add_argument("--detectors", help="comma-separated detector names (default: all)")
@@ -273,10 +286,14 @@ def build_parser() -> argparse.ArgumentParser:
     train = priors.add_parser("train", help="train a prior on CMU motion").add_subparsers(
         dest="prior", required=True, metavar="PRIOR"
     )
-    train_pose = train.add_parser("pose", help="Gaussian-mixture pose prior (docs/priors.md)")
+    train_pose = train.add_parser("pose", help="pose prior: Gaussian mixture or VAE (docs/priors.md)")
+    train_pose.add_argument("--model", choices=("gmm", "vae"), default="gmm", help="which pose prior (default gmm)")
     train_pose.add_argument("--motion", type=Path, metavar="DIR", help="CMU motion directory (default ../shared/motion/cmu_train)")
     train_pose.add_argument("--out", type=Path, required=True, metavar="FILE", help=".npz file to write")
-    train_pose.add_argument("--components", type=int, default=8, help="mixture components (default 8)")
+    train_pose.add_argument("--components", type=int, default=8, help="gmm: mixture components (default 8)")
+    train_pose.add_argument("--latent", type=int, default=32, help="vae: latent size (default 32)")
+    train_pose.add_argument("--width", type=int, default=512, help="vae: hidden width (default 512)")
+    train_pose.add_argument("--epochs", type=int, default=40, help="vae: training epochs (default 40)")
     train_pose.add_argument("--seed", type=int, default=0, help="seed of the initialisation and the subject split (default 0)")
     _add_body_args(train_pose)
     train_pose.set_defaults(func=cmd_priors_train_pose)
