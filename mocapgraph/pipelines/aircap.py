@@ -42,9 +42,20 @@ from mocapgraph.factors.priors import (
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import SYNC_POLICIES, FrameGroup, frame_groups
-from mocapgraph.graphs.keys import camera_key, camera_offset_key, pose_key, pose_latent_key, root_key, shape_key
+from mocapgraph.graphs.keys import (
+    camera_key,
+    camera_offset_key,
+    motion_latent_key,
+    pose_key,
+    pose_latent_key,
+    root_key,
+    shape_key,
+)
 from mocapgraph.graphs.solver import SolverOptions, solve_staged
 from mocapgraph.priors import load_default_pose_gmm, pose_gmm_factor
+from mocapgraph.priors.motion_factor import MotionVAEPrior
+from mocapgraph.priors.motion_vae import load_default_motion_vae
+from mocapgraph.priors.motion_windows import WINDOW
 from mocapgraph.priors.pose_vae import load_default_pose_vae
 from mocapgraph.priors.pose_vae_factor import PoseVAEPrior
 
@@ -69,6 +80,10 @@ class AircapOptions:
     # Learned pose prior (docs/priors.md): "gmm" on every graph; "vae" on the sequence fit only
     # (its network runs once per linearisation for all states; per state it would cost 16 ms).
     pose_prior: str = "none"
+    # SmartMocap's motion prior on 25-state windows of the sequence fit (needs 30 Hz grid states);
+    # windows start every motion_window_stride states, each with its own latent.
+    motion_prior: str = "none"
+    motion_window_stride: int = 25
     shape_prior_sigma: float = 0.25
     root_sigma_rad_s: float = 4.0
     root_sigma_m_s: float = 3.0
@@ -98,6 +113,13 @@ class AircapOptions:
             raise MocapgraphError(f"pose_prior {self.pose_prior!r}: choose one of {', '.join(POSE_PRIORS)}")
         if self.mode == "per-frame" and self.pose_prior == "vae":
             raise MocapgraphError("pose_prior 'vae' runs on the sequence fit: use mode 'sequence', or pose_prior 'gmm' per frame")
+        if self.motion_prior not in MOTION_PRIORS:
+            raise MocapgraphError(f"motion_prior {self.motion_prior!r}: choose one of {', '.join(MOTION_PRIORS)}")
+        if self.motion_prior != "none":
+            if self.mode != "sequence" or (self.sync or "grid") != "grid" or self.grid_hz != 30.0:
+                raise MocapgraphError("motion_prior: its windows are 25 states at 30 Hz; use mode 'sequence' with sync 'grid' at grid_hz 30")
+            if not (isinstance(self.motion_window_stride, int) and 1 <= self.motion_window_stride <= 25):
+                raise MocapgraphError(f"motion_window_stride: a whole number of states in [1, 25], got {self.motion_window_stride!r}")
         if not 0.0 < self.camera_prior_white_fraction < 1.0:
             raise MocapgraphError(f"camera_prior_white_fraction: must lie in (0, 1), got {self.camera_prior_white_fraction}")
         if not (isinstance(self.workers, int) and self.workers >= 1):
@@ -219,6 +241,8 @@ class _Problem:
         self.common: dict[int, np.ndarray] = {}  # camera index -> common_covariance
         self.pose_gmm = load_default_pose_gmm() if options.pose_prior == "gmm" else None
         self.pose_vae = load_default_pose_vae() if options.pose_prior == "vae" else None
+        self.motion_vae = load_default_motion_vae() if options.motion_prior == "vae" else None
+        self.windows = self.motion_windows(len(states)) if self.motion_vae is not None else []
 
     def camera_prior(self, c: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         poses, cov = self.priors[self.capture.cameras[c].name]
@@ -286,6 +310,14 @@ class _Problem:
             if not values.exists(camera_key(c, j)):
                 values.insert(camera_key(c, j), gtsam.Pose3(prior))
 
+    def motion_windows(self, n: int) -> list[int]:
+        """First states of the motion prior's windows over ``n`` states: every stride, plus one
+        ending at the last state when the stride leaves a tail (none when ``n`` < 25)."""
+        starts = list(range(0, n - WINDOW + 1, self.options.motion_window_stride))
+        if starts and starts[-1] + WINDOW < n:
+            starts.append(n - WINDOW)
+        return starts
+
     def time_ordering(self, values: gtsam.Values) -> list[int]:
         """Elimination order for a sequence: body states and camera frames in time order (a
         camera frame before the state after it), then the shared shape and camera offsets.
@@ -301,6 +333,9 @@ class _Problem:
         if self.refine:
             cams = self.capture.cameras
             timed += [(cams[c].timestamps[j], 0, [camera_key(c, j)]) for c, j in self.camera_members(self.states)]
+        # A window's latent touches its 25 states: eliminated first it would join them all in
+        # one dense clique, so it goes after its last state and rides along the chain instead.
+        timed += [(self.states[i0 + WINDOW - 1].group.time, 2, [motion_latent_key(w)]) for w, i0 in enumerate(self.windows)]
         timed.sort(key=lambda item: (item[0], item[1]))
         order = [key for _, _, keys in timed for key in keys]
         listed = set(order)
@@ -482,6 +517,8 @@ def sequence_graph(problem: _Problem, estimate: _Estimate) -> tuple[gtsam.Nonlin
     values = estimate.body_values()
     if problem.pose_vae is not None:
         PoseVAEPrior(problem.pose_vae, range(len(states))).add_to(graph, values, estimate.poses)
+    if problem.windows:
+        MotionVAEPrior(problem.motion_vae, problem.body, problem.windows, shape_key=shape_key()).add_to(graph, values)
     if problem.refine:
         members = problem.camera_members(states)
         problem.add_camera_priors(graph, values, members)
@@ -596,6 +633,12 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
         pf_times = times
         problem, times = problem_for(options.sync or "grid")
         _log(options, f"sequence: {len(times)} body states")
+        if options.motion_prior != "none":
+            if problem.windows:
+                _log(options, f"motion prior: {len(problem.windows)} windows of {WINDOW} states")
+            else:
+                notes.append(f"motion prior: {len(times)} body states are fewer than one window ({WINDOW}); not applied")
+                _log(options, notes[-1])
         estimate, graph, values = solve_sequence(problem, resample(estimate, pf_times, times))
     seconds = time.perf_counter() - start
     states = problem.states

@@ -76,6 +76,7 @@ def cmd_run_aircap(args) -> None:
         mode=args.mode, cameras=args.cameras, sync=args.sync, grid_hz=args.grid_hz, gm_sigma_px=args.gm_sigma_px, workers=args.workers,
         detectors=tuple(args.detectors.split(",")) if args.detectors else None,
         covariances=not args.no_covariances, progress=not args.quiet, pose_prior=args.pose_prior,
+        motion_prior=args.motion_prior,
     )  # fmt: skip
     run_aircap_command(args.capture, args.out, options, overwrite=args.overwrite)
     print(f"wrote {args.out}")
@@ -264,6 +265,10 @@ def build_parser() -> argparse.ArgumentParser:
     aircap.add_argument(
         "--pose-prior", choices=("none", "gmm", "vae"), default="none",
         help="learned pose prior on every state (docs/priors.md); default none",
+    )  # fmt: skip
+    aircap.add_argument(
+        "--motion-prior", choices=("none", "vae"), default="none",
+        help="SmartMocap's motion prior on 25-state windows of the sequence fit (docs/priors.md); default none",
     )  # fmt: skip
     aircap.add_argument("--detectors", help="comma-separated detector names (default: all)")
     aircap.add_argument("--gm-sigma-px", type=float, default=40.0, help="Geman-McClure scale in pixels (default 40)")
