@@ -142,6 +142,12 @@ def cmd_bench_aircap(args) -> None:
     print(json.dumps(bench_aircap(duration_s=args.duration, seed=args.seed)))
 
 
+def cmd_bench_priors(args) -> None:
+    from mocapgraph.pipelines.bench_priors import bench_priors
+
+    print(json.dumps(bench_priors(args.motion, duration_s=args.duration, seed=args.seed, noise_scale=args.noise_scale)))
+
+
 def cmd_demo(args) -> None:
     from mocapgraph.pipelines.demo import run_demo
 
@@ -214,6 +220,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench_aircap.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     bench_aircap.add_argument("--json", action="store_true", help="print one JSON object (always on)")
     bench_aircap.set_defaults(func=cmd_bench_aircap)
+    bench_priors = bench.add_parser("priors", help="the shipped learned priors on held-out CMU subjects and on aircap, one JSON object")
+    bench_priors.add_argument("--motion", type=Path, metavar="DIR", help="CMU motion directory (default ../shared/motion/cmu_train)")
+    bench_priors.add_argument("--duration", type=float, default=10.0, help="seconds of the aircap capture (default 10)")
+    bench_priors.add_argument("--seed", type=int, default=0, help="aircap scenario seed (default 0)")
+    bench_priors.add_argument("--noise-scale", type=float, default=3.0, help="keypoint noise multiplier of the aircap capture (default 3)")
+    bench_priors.add_argument("--json", action="store_true", help="print one JSON object (always on)")
+    bench_priors.set_defaults(func=cmd_bench_priors)
 
     capture = sub.add_parser("capture", help="inspect, import and assemble captures").add_subparsers(
         dest="capture_command", required=True, metavar="SUBCOMMAND"

@@ -1,0 +1,50 @@
+"""`bench priors`' pieces that need no motion directory: the corruptions and the held-out take links."""
+
+import numpy as np
+import pytest
+
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.pipelines.bench_priors import _held_out_dir, corrupt
+from conftest import random_root
+
+
+@pytest.fixture
+def motion():
+    rng = np.random.default_rng(0)
+    return random_root(rng, 300), rng.normal(scale=0.3, size=(300, 21, 3))
+
+
+def test_jitter_adds_noise_of_the_stated_size(motion):
+    root, pose = motion
+    r, p = corrupt("jitter", root, pose, np.random.default_rng(1))
+    assert np.std(p - pose) == pytest.approx(np.deg2rad(5.0), rel=0.05)
+    assert np.std(r[:, :3, 3] - root[:, :3, 3]) == pytest.approx(0.02, rel=0.1)
+    np.testing.assert_array_equal(r[:, :3, :3], root[:, :3, :3])
+
+
+def test_skating_glides_the_root_and_keeps_the_pose(motion):
+    root, pose = motion
+    r, p = corrupt("skate", root, pose, np.random.default_rng(1))
+    np.testing.assert_allclose(r[:, 0, 3] - root[:, 0, 3], 1.25 * np.arange(300) / 30.0)
+    np.testing.assert_array_equal(r[:, 1:3, 3], root[:, 1:3, 3])
+    np.testing.assert_array_equal(p, pose)
+
+
+def test_flip_turns_the_body_up_axis_into_its_forward_axis(motion):
+    root, pose = motion
+    r, _ = corrupt("flip", root, pose, np.random.default_rng(1))
+    np.testing.assert_allclose(r[:, :3, 1], root[:, :3, 2], atol=1e-12)  # body +Y (up) now where +Z (forward) was
+    np.testing.assert_allclose(r[:, :3, 3], root[:, :3, 3])
+    with pytest.raises(MocapgraphError, match="unknown corruption 'melt'"):
+        corrupt("melt", root, pose, np.random.default_rng(1))
+
+
+def test_held_out_directory_links_only_the_held_out_subjects(tmp_path):
+    source, scratch = tmp_path / "motion", tmp_path / "scratch"
+    source.mkdir(), scratch.mkdir()
+    for name in ("cmu_02_01.npz", "cmu_03_07_s1.npz", "cmu_15_01.npz", "index.json"):
+        (source / name).write_bytes(b"x")
+    linked = _held_out_dir(source, [2, 15], scratch)
+    assert sorted(p.name for p in linked.iterdir()) == ["cmu_02_01.npz", "cmu_15_01.npz"]
+    with pytest.raises(MocapgraphError, match="nowhere: motion directory not found"):
+        _held_out_dir(tmp_path / "nowhere", [2], scratch)
