@@ -90,3 +90,20 @@ def test_capture_info_says_what_the_loader_repaired(tmp_path, capsys):
 def test_every_subcommand_has_help(args):
     proc = subprocess.run([sys.executable, "-m", "mocapgraph.pipelines.cli", *args], capture_output=True, text=True)
     assert proc.returncode == 0 and "usage: mocapgraph" in proc.stdout
+
+
+def test_priors_train_motion_on_a_tiny_motion_directory(tmp_path, capsys):
+    from mocapgraph.priors.motion_vae import MotionVAE
+    from test_cmu_motion import write_take
+
+    for i, subject in enumerate((1, 2, 3, 4, 6)):
+        write_take(tmp_path / f"cmu_{subject:02d}_01.npz", frames=40, seed=i)
+    out = tmp_path / "motion.npz"
+    args = ["priors", "train", "motion", "--motion", str(tmp_path), "--out", str(out), "--width", "8", "--latent", "4", "--epochs", "2"]
+    assert main(args) == 0
+    printed = capsys.readouterr()
+    assert "epoch 2/2: " in printed.err and "position error" in printed.out
+    vae = MotionVAE.load(out)
+    assert vae.latent_dim == 4 and vae.info["train_windows"] + vae.info["val_windows"] == 5 * 4  # 40 frames: starts 0, 5, 10, 15
+    assert main(["priors", "train", "motion", "--motion", str(tmp_path / "nowhere"), "--out", str(out)]) == 2
+    assert "nowhere: motion directory not found" in capsys.readouterr().err

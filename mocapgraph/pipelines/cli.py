@@ -186,6 +186,23 @@ def cmd_priors_train_pose(args) -> None:
     print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KB)")
 
 
+def cmd_priors_train_motion(args) -> None:
+    from mocapgraph.data_tools.cmu_motion import motion_dir
+    from mocapgraph.priors.motion_vae import train_motion_vae
+
+    vae = train_motion_vae(
+        args.motion or motion_dir(), _body(args), width=args.width, latent=args.latent, epochs=args.epochs,
+        seed=args.seed, stride=args.stride, progress=_progress,
+    )  # fmt: skip
+    path = vae.save(args.out)
+    info = vae.info
+    print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {info['val_windows']} windows")
+    print(f"  position error            {1000 * info['val_mpjpe_m']:.1f} mm per joint (decode(encode(window)))")
+    print(f"  model                     width {info['width']}, latent {info['latent']}, {info['parameters']} parameters")
+    print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s training")
+    print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KB)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from mocapgraph.data_tools.capture_cli import add_detect_parser, add_import_parser
 
@@ -315,6 +332,16 @@ def build_parser() -> argparse.ArgumentParser:
     train_pose.add_argument("--seed", type=int, default=0, help="seed of the initialisation and the subject split (default 0)")
     _add_body_args(train_pose)
     train_pose.set_defaults(func=cmd_priors_train_pose)
+    train_motion = train.add_parser("motion", help="SmartMocap motion VAE over 25-frame windows (docs/priors.md)")
+    train_motion.add_argument("--motion", type=Path, metavar="DIR", help="CMU motion directory (default ../shared/motion/cmu_train)")
+    train_motion.add_argument("--out", type=Path, required=True, metavar="FILE", help=".npz file to write")
+    train_motion.add_argument("--width", type=int, default=128, help="convolution channels (default 128)")
+    train_motion.add_argument("--latent", type=int, default=64, help="latent size (default 64)")
+    train_motion.add_argument("--epochs", type=int, default=40, help="training epochs, two 20-epoch KL cycles (default 40)")
+    train_motion.add_argument("--stride", type=int, default=5, help="frames between training windows (default 5)")
+    train_motion.add_argument("--seed", type=int, default=0, help="seed of the weights, the batches and the subject split (default 0)")
+    _add_body_args(train_motion)
+    train_motion.set_defaults(func=cmd_priors_train_motion)
 
     demo = sub.add_parser("demo", help="pose the default body and draw it (grows with the pipelines)")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
