@@ -295,7 +295,7 @@ def fit_motion_vae(
     seed: int = 0,
     beta: float = 0.003,
     cycle: int = 20,
-    batch_size: int = 256,
+    batch_size: int = 64,
     learning_rate: float = 1e-3,
     body_model: str = "anny",
     progress: Callable[[str], None] | None = None,
@@ -311,6 +311,8 @@ def fit_motion_vae(
         beta: the KL weight reached in each cycle (see the module docstring).
         cycle: epochs per KL cycle.
         batch_size, learning_rate: Adam's mini-batches and step size (cosine-decayed to 5 %).
+            Batches of 64 beat 256 for the same compute (held-out MPJPE 69 against 86 mm after two
+            epochs on a third of the CMU windows, W = 128, L = 32; learning rate 3e-3 gave 74 mm).
         body_model: recorded in the model.
         progress: called with one line per epoch (``epoch 3/40: loss …, val mpjpe … mm``).
 
@@ -389,9 +391,11 @@ def train_motion_vae(
     ``stride`` frames), hold out a seeded ``val_fraction`` of the subjects (the same subjects as
     the pose prior for the same seed), train on the rest, measure σ and the MPJPE on the held-out.
 
-    Returns the model; its ``info`` adds the data, the stride, the held-out subjects and the
-    loading time to :func:`fit_motion_vae`'s record.
+    Returns the model; its ``info`` adds the data, the stride, the held-out subjects, the loading
+    time and the decoder Jacobian's cost (:func:`~mocapgraph.priors.motion_factor.decoder_jacobian_ms`
+    with the process's torch threads) to :func:`fit_motion_vae`'s record.
     """
+    from mocapgraph.priors.motion_factor import decoder_jacobian_ms
     from mocapgraph.priors.motion_windows import load_motion_windows
     from mocapgraph.priors.training import split_by_subject
 
@@ -409,5 +413,7 @@ def train_motion_vae(
     )  # fmt: skip
     info = {"data": Path(motion_dir).name, "stride": stride, "val_fraction": val_fraction,
             "val_subjects": held_out, "train_subjects": int(len(np.unique(windows.subjects[~val]))),
-            "load_seconds": round(load_s, 1), **vae.info}  # fmt: skip
+            "load_seconds": round(load_s, 1), **vae.info,
+            "decoder_jacobian_ms_per_window": round(decoder_jacobian_ms(vae), 1),
+            "decoder_jacobian_threads": torch.get_num_threads()}  # fmt: skip
     return replace(vae, info=info)
