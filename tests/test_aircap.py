@@ -137,3 +137,27 @@ def test_command_line_writes_a_result(tmp_path, capsys):
     result = load_result(tmp_path / "res")
     assert result.pipeline == "aircap" and result.has_body_parameters
     assert "joints" in result.covariances
+
+
+def test_learned_priors_run_on_the_sequence_fit(capture):
+    for priors in ({"pose_prior": "gmm"}, {"pose_prior": "vae", "motion_prior": "vae"}):
+        result, metrics = run(capture, **priors)
+        assert metrics["ra_mpjpe_m"] < 0.08 and metrics["pa_mpjpe_m"] < 0.05, priors
+        assert result.parameters["pose_prior"] == priors["pose_prior"]
+
+
+def test_learned_prior_options_that_cannot_work_are_clear_errors():
+    from mocapgraph.errors import MocapgraphError
+
+    with pytest.raises(MocapgraphError, match="pose_prior 'vae' runs on the sequence fit"):
+        AircapOptions(mode="per-frame", pose_prior="vae").check()
+    with pytest.raises(MocapgraphError, match="25 states at 30 Hz"):
+        AircapOptions(motion_prior="vae", grid_hz=20.0).check()
+    with pytest.raises(MocapgraphError, match="motion_prior 'lstm'"):
+        AircapOptions(motion_prior="lstm").check()
+
+
+def test_motion_prior_on_a_capture_shorter_than_a_window_is_a_note():
+    short = synthesize("aircap", seed=0, duration_s=0.6)
+    result, _ = run(short, motion_prior="vae", workers=1)
+    assert any("fewer than one window" in note for note in result.parameters["notes"])

@@ -16,7 +16,6 @@ Mahalanobis distance and ``P_kᵀ(θ − μ_k)`` the whitened residual of the fa
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -26,10 +25,10 @@ from scipy.linalg import solve_triangular
 from scipy.special import logsumexp
 
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.priors.model_file import read_model_file, write_model_file
 
 FORMAT_VERSION = 1
 _KEYS = ("format_version", "body_model", "weights", "means", "covariances", "info")
-_OPTIONAL_KEYS = ("joints",)
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,39 +142,23 @@ class PoseGMM:
 
     def save(self, path: str | Path) -> Path:
         """Write an ``.npz`` (format version, body model, arrays, info as JSON); atomic rename."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(
-            tmp, format_version=FORMAT_VERSION, body_model=self.body_model, weights=self.weights,
+        return write_model_file(
+            path, format_version=FORMAT_VERSION, body_model=self.body_model, weights=self.weights,
             means=self.means, covariances=self.covariances, info=json.dumps(self.info),
             **({} if self.joints is None else {"joints": self.joints}),
         )  # fmt: skip
-        os.replace(tmp, path)
-        return path
 
     @classmethod
     def load(cls, path: str | Path) -> PoseGMM:
         """Read a file written by :meth:`save`; errors name the file and the key."""
-        path = Path(path)
-        if not path.exists():
-            raise MocapgraphError(f"{path}: pose GMM file not found")
+        d = read_model_file(path, "pose GMM", _KEYS, FORMAT_VERSION)
         try:
-            with np.load(path, allow_pickle=False) as d:
-                missing = [k for k in _KEYS if k not in d.files]
-                if missing:
-                    raise MocapgraphError(f"{path}: missing key {missing[0]!r}")
-                version = int(d["format_version"])
-                if version != FORMAT_VERSION:
-                    raise MocapgraphError(f"{path}: format_version {version}, this mocapgraph reads {FORMAT_VERSION}")
-                arrays = {k: d[k].astype(float) for k in ("weights", "means", "covariances")}
-                body_model, info = str(d["body_model"]), json.loads(str(d["info"]))
-                joints = d["joints"].astype(int) if "joints" in d.files else None
-        except (OSError, ValueError) as exc:
-            raise MocapgraphError(f"{path}: not a readable pose GMM .npz ({exc})") from None
-        try:
-            return cls(**arrays, body_model=body_model, info=info, joints=joints)
-        except MocapgraphError as exc:
+            return cls(
+                **{k: d[k].astype(float) for k in ("weights", "means", "covariances")},
+                body_model=str(d["body_model"]), info=json.loads(str(d["info"])),
+                joints=d["joints"].astype(int) if "joints" in d else None,
+            )  # fmt: skip
+        except (MocapgraphError, ValueError) as exc:
             raise MocapgraphError(f"{path}: {exc}") from None
 
 

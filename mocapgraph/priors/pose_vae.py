@@ -27,7 +27,6 @@ KL term's weight rises linearly from 0 to 1 over the first epochs (KL annealing)
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 from typing import Callable
@@ -38,12 +37,12 @@ import torch
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.priors.model_file import load_weights, read_model_file, weight_arrays, write_model_file
 from mocapgraph.priors.pose_gmm import _as_poses
 from mocapgraph.priors.training import load_pose_frames, moving_joints, split_by_subject
 
 FORMAT_VERSION = 1
 _KEYS = ("format_version", "body_model", "joints", "static_pose", "sigma", "config", "info")
-_STATE = "state/"  # prefix of the network weights' keys in the file
 DEFAULT_POSE_VAE = Path(__file__).parent / "data" / "pose_vae.npz"
 
 
@@ -267,60 +266,31 @@ class PoseVAE(torch.nn.Module):
             return (log_lik - _kl(mu, log_var).double()).numpy()
 
     def save(self, path: str | Path, float16: bool = False) -> Path:
-        """Write one ``.npz`` (no pickle): format version, body model, joints, static pose, σ, the
-        config and info as JSON, and every weight as ``state/<name>`` (float16 when asked, which
-        halves the file); atomic rename."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        dtype = np.float16 if float16 else np.float32
-        state = {_STATE + k: v.detach().cpu().numpy().astype(dtype) for k, v in self.state_dict().items()}
-        np.savez(
-            tmp, format_version=FORMAT_VERSION, body_model=self.body_model, joints=self.joints,
+        """Write one ``.npz`` (no pickle, :mod:`~mocapgraph.priors.model_file`): format version,
+        body model, joints, static pose, σ, the config and info as JSON, and every weight as
+        ``state/<name>`` (float16 when asked, which halves the file); atomic rename."""
+        return write_model_file(
+            path, format_version=FORMAT_VERSION, body_model=self.body_model, joints=self.joints,
             static_pose=self.static_pose, sigma=self.sigma,
-            config=json.dumps({"latent": self.latent, "width": self.width}), info=json.dumps(self.info), **state,
+            config=json.dumps({"latent": self.latent, "width": self.width}), info=json.dumps(self.info),
+            **weight_arrays(self, np.float16 if float16 else np.float32),
         )  # fmt: skip
-        os.replace(tmp, path)
-        return path
 
     @classmethod
     def load(cls, path: str | Path) -> PoseVAE:
         """Read a file written by :meth:`save` (weights as float32); errors name the file and the key."""
-        path = Path(path)
-        if not path.exists():
-            raise MocapgraphError(f"{path}: pose VAE file not found")
+        d = read_model_file(path, "pose VAE", _KEYS, FORMAT_VERSION)
         try:
-            with np.load(path, allow_pickle=False) as d:
-                missing = [k for k in _KEYS if k not in d.files]
-                if missing:
-                    raise MocapgraphError(f"{path}: missing key {missing[0]!r}")
-                version = int(d["format_version"])
-                if version != FORMAT_VERSION:
-                    raise MocapgraphError(f"{path}: format_version {version}, this mocapgraph reads {FORMAT_VERSION}")
-                config, info = json.loads(str(d["config"])), json.loads(str(d["info"]))
-                arrays = {k: d[k] for k in ("joints", "static_pose", "sigma")}
-                state = {
-                    k[len(_STATE):]: torch.as_tensor(d[k].astype(np.float32)) for k in d.files if k.startswith(_STATE)
-                }
-                body_model = str(d["body_model"])
-        except (OSError, ValueError) as exc:
-            raise MocapgraphError(f"{path}: not a readable pose VAE .npz ({exc})") from None
-        try:
-            vae = cls(**arrays, latent=config["latent"], width=config["width"], body_model=body_model, info=info)
-        except MocapgraphError as exc:
+            config = json.loads(str(d["config"]))
+            vae = cls(
+                d["joints"], d["static_pose"], latent=config["latent"], width=config["width"], sigma=d["sigma"],
+                body_model=str(d["body_model"]), info=json.loads(str(d["info"])),
+            )  # fmt: skip
+        except (MocapgraphError, ValueError) as exc:
             raise MocapgraphError(f"{path}: {exc}") from None
         except KeyError as exc:
             raise MocapgraphError(f"{path}: config has no {exc.args[0]!r}") from None
-        expected = vae.state_dict()
-        for name, tensor in expected.items():
-            if name not in state:
-                raise MocapgraphError(f"{path}: missing key {_STATE + name!r}")
-            if state[name].shape != tensor.shape:
-                raise MocapgraphError(
-                    f"{path}: key {_STATE + name!r} has shape {tuple(state[name].shape)}, "
-                    f"the config needs {tuple(tensor.shape)}"
-                )
-        vae.load_state_dict({k: state[k] for k in expected})
+        load_weights(path, vae, d)
         return vae
 
 
