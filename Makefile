@@ -42,10 +42,12 @@ test: install
 test-all: install
 	$(PY) -m pytest -q -m "slow or not slow"
 
-# Speed and accuracy targets live here, not in timed tests; aircap takes about 15 minutes.
+# Speed and accuracy targets live here, not in timed tests; aircap takes about 15 minutes, priors
+# (which reads the held-out CMU takes of ../shared/motion/cmu_train) a few.
 bench: install
 	$(VENV)/bin/mocapgraph bench body --json
 	$(VENV)/bin/mocapgraph bench aircap --duration 60
+	$(VENV)/bin/mocapgraph bench priors --json
 
 clean:
 	rm -rf build $(VENV) $(VIDEO_VENV) .pytest_cache
