@@ -27,13 +27,20 @@ class BatchedDecoder:
         fn: a torch function acting independently on each row of a ``(B, L)`` float32 batch.
         keys: the GTSAM keys of the latent variables (``Vector(L)`` each).
         dim: ``L``.
+        chunk_size: rows per vectorised Jacobian pass (None: the whole batch in one pass).
 
     The Jacobian comes from forward-mode differentiation (``L`` JVPs per row, vectorised over the
     batch), cheaper than reverse mode because ``L`` is smaller than ``R`` for every prior here.
+    A pass holds ``L`` tangents of every hidden activation of its rows; for a large network,
+    chunks keep them in cache (the motion VAE, W = 128, L = 64, 72 windows: 14.6 ms per window
+    in chunks of 8 against 26.8 ms in one pass, 1 thread).
     """
 
-    def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], keys: list[int], dim: int):
+    def __init__(
+        self, fn: Callable[[torch.Tensor], torch.Tensor], keys: list[int], dim: int, chunk_size: int | None = None
+    ):
         self.fn, self.keys, self.dim = fn, [int(k) for k in keys], int(dim)
+        self.chunk_size = chunk_size
         self.row = {k: i for i, k in enumerate(self.keys)}
         self._z = np.full((len(self.keys), self.dim), np.nan)
         self._out: np.ndarray | None = None
@@ -65,7 +72,8 @@ class BatchedDecoder:
         if jacobian:
             single = lambda z: self.fn(z[None])[0]  # noqa: E731 (torch.func wants a per-row function)
             with torch.no_grad():
-                self._jac[present] = torch.func.vmap(torch.func.jacfwd(single))(batch).double().numpy()
+                rows_jacobian = torch.func.vmap(torch.func.jacfwd(single), chunk_size=self.chunk_size)
+                self._jac[present] = rows_jacobian(batch).double().numpy()
         self._has_jac = present & jacobian
         self._z = Z
         self.evaluations += 1

@@ -57,6 +57,9 @@ POSE_DIM = 3 * (NUM_JOINTS - 1)
 _D_FORWARD_D_OMEGA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
 """``δf = R0 (ω × e_z) = R0 · this · ω``."""
 _GROUND = np.diag([1.0, 1.0, 0.0])
+JACOBIAN_CHUNK = 8
+"""Windows per vectorised Jacobian pass: 8 keeps a pass's tangents in cache (W = 128, L = 64, 72
+windows, 1 thread: 14.6 ms per window against 26.8 ms in one pass; chunks of 2 or 24: 15.8, 15.9 ms)."""
 
 
 def canonical_point_jacobian(world_T_root0: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -162,7 +165,7 @@ class MotionVAEPrior:
         self.fixed_shape = None if fixed_shape is None else body.check_shape(fixed_shape)
         self.cache = table_cache if table_cache is not None else ShapeTableCache(body, "body")
         self.latent_keys = [motion_latent_key(w) for w in range(len(self.starts))]
-        self.decoder = BatchedDecoder(vae.decode_positions, self.latent_keys, vae.latent_dim)
+        self.decoder = BatchedDecoder(vae.decode_positions, self.latent_keys, vae.latent_dim, chunk_size=JACOBIAN_CHUNK)
 
     def frame_factor(self, w: int, t: int) -> gtsam.CustomFactor:
         """The factor tying frame ``t`` (0–24) of window ``w`` to the decoder (66 rows, unit noise)."""
@@ -213,7 +216,7 @@ def decoder_jacobian_ms(vae: MotionVAE, windows: int = 72, repeats: int = 3, see
         values.insert(key, z)
     seconds = []
     for _ in range(repeats):
-        decoder = BatchedDecoder(vae.decode_positions, keys, vae.latent_dim)
+        decoder = BatchedDecoder(vae.decode_positions, keys, vae.latent_dim, chunk_size=JACOBIAN_CHUNK)
         start = time.perf_counter()
         decoder(values, keys[0], jacobian=True)
         seconds.append(time.perf_counter() - start)

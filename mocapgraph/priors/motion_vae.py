@@ -58,7 +58,7 @@ class MotionVAEConfig:
 
     width: int = 128
     latent: int = 64
-    blocks: int = 4
+    blocks: int = 2
 
     def __post_init__(self):
         for name in ("width", "latent", "blocks"):
@@ -291,7 +291,7 @@ def fit_motion_vae(
     train_windows,
     val_windows,
     config: MotionVAEConfig = MotionVAEConfig(),
-    epochs: int = 40,
+    epochs: int = 20,
     seed: int = 0,
     beta: float = 0.003,
     cycle: int = 20,
@@ -379,12 +379,12 @@ def train_motion_vae(
     body,
     width: int = 128,
     latent: int = 64,
-    epochs: int = 40,
+    epochs: int = 20,
     seed: int = 0,
     stride: int = 5,
     val_fraction: float = 0.2,
     progress: Callable[[str], None] | None = None,
-    blocks: int = 4,
+    blocks: int = 2,
     beta: float = 0.003,
 ) -> MotionVAE:
     """Load the CMU takes of ``motion_dir`` as windows on ``body`` (default shape, one window every
