@@ -12,9 +12,11 @@ from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.data_tools.motion_sources import procedural_motion
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.keys import motion_latent_key, pose_key, root_key, shape_key
+from mocapgraph.graphs.solver import SolverOptions, levenberg_marquardt
+from mocapgraph.priors.latent import BatchedDecoder
 from mocapgraph.priors.motion_factor import MotionVAEPrior
 from mocapgraph.priors.motion_vae import (
-    MotionVAE, MotionVAEConfig, MotionVAENet, fit_motion_vae, kl_weight, train_motion_vae,
+    MotionVAE, MotionVAEConfig, MotionVAENet, fit_motion_vae, kl_weight, load_default_motion_vae, train_motion_vae,
 )  # fmt: skip
 from mocapgraph.priors.motion_windows import (
     CHANNELS, WINDOW, canonical_frame, feature_positions, load_motion_windows, motion_features, window_features,
@@ -277,6 +279,18 @@ def test_one_batched_decoder_run_per_linearisation(body, walk):
     assert prior.decoder.evaluations == 2
 
 
+def test_chunked_jacobians_equal_the_one_pass_ones():
+    vae = _random_vae()
+    keys = [motion_latent_key(w) for w in range(11)]
+    values = gtsam.Values()
+    for key, z in zip(keys, np.random.default_rng(0).normal(size=(11, TINY.latent))):
+        values.insert(key, z)
+    whole, chunked = (BatchedDecoder(vae.decode_positions, keys, TINY.latent, chunk_size=c) for c in (None, 4))
+    for key in keys:
+        np.testing.assert_allclose(chunked(values, key, True)[1], whole(values, key, True)[1], rtol=1e-5, atol=1e-6)
+    assert chunked.evaluations == whole.evaluations == 1
+
+
 def test_prior_rejects_bad_arguments(body):
     vae = _random_vae()
     with pytest.raises(MocapgraphError, match="exactly one of shape_key and fixed_shape"):
@@ -286,3 +300,71 @@ def test_prior_rejects_bad_arguments(body):
     with pytest.raises(MocapgraphError, match="body state 3"):
         three_states = _state_values(np.tile(np.eye(4), (3, 1, 1)), np.zeros((3, 63)), body.default_shape)
         MotionVAEPrior(vae, body, [0], shape_key=shape_key()).initial_latents(three_states)
+
+
+# --------------------------------------------------------------------------------------------
+# The shipped model
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return load_default_motion_vae()
+
+
+def _corrupted(walk, kind: str, rng) -> tuple[np.ndarray, np.ndarray]:
+    root, pose = walk.root.copy(), walk.pose.copy()
+    if kind == "jitter":
+        pose += rng.normal(scale=0.12, size=pose.shape)
+        root[:, :3, 3] += rng.normal(scale=0.02, size=root[:, :3, 3].shape)
+    elif kind == "foot skating":
+        # The body glides sideways at 1 m/s on top of its walk: planted feet slide.
+        root[:, :3, 3] += np.outer(np.arange(len(root)) / walk.fps, root[0, :3, 0])
+    elif kind == "90° root flip":
+        # Every 25 frames' second half turned by 90° about the vertical through the pelvis.
+        turned = np.arange(len(root)) % WINDOW >= WINDOW // 2
+        root[turned, :3, :3] = axis_rotation("z", np.pi / 2) @ root[turned, :3, :3]
+    return root, pose
+
+
+def test_shipped_model_scores_real_windows_above_corrupted_ones(body, walk, shipped):
+    starts = np.arange(0, len(walk.root) - WINDOW + 1, WINDOW)
+    real = shipped.elbo(motion_features(body, walk.root, walk.pose, starts))
+    rng = np.random.default_rng(0)
+    for kind in ("jitter", "foot skating", "90° root flip"):
+        root, pose = _corrupted(walk, kind, rng)
+        corrupted = shipped.elbo(motion_features(body, root, pose, starts))
+        assert real.mean() > corrupted.mean() + 200, kind
+    assert shipped.info["val_mpjpe_m"] < 0.03 and shipped.latent_dim == shipped.info["latent"]
+
+
+def test_lm_pulls_a_jittered_walk_toward_the_prior(body, walk, shipped):
+    """The jittered walk plus weak data terms: the prior smooths it back toward the clean walk."""
+    n = WINDOW
+    rng = np.random.default_rng(1)
+    root, pose = _corrupted(walk, "jitter", rng)
+    root, pose = root[:n], pose[:n]
+    values = _state_values(root, pose, None)
+    graph = gtsam.NonlinearFactorGraph()
+    for i in range(n):
+        graph.add(gtsam.PriorFactorPose3(root_key(i), gtsam.Pose3(root[i]), gtsam.noiseModel.Isotropic.Sigma(6, 0.05)))
+        graph.add(gtsam.PriorFactorVector(pose_key(i), pose[i].ravel(), gtsam.noiseModel.Isotropic.Sigma(63, 0.15)))
+    prior = MotionVAEPrior(shipped, body, [0], fixed_shape=body.default_shape)
+    prior.add_to(graph, values)
+    before = prior.frame_factor(0, 12).error(values)
+    result = levenberg_marquardt(graph, values, SolverOptions(max_iterations=15))
+    solved = result.values
+    joints = lambda r, p: body.forward(walk.shape, r, p).joints  # noqa: E731
+    clean = joints(walk.root[:n], walk.pose[:n])
+    start_error = np.linalg.norm(joints(root, pose) - clean, axis=-1).mean()
+    roots = np.stack([solved.atPose3(root_key(i)).matrix() for i in range(n)])
+    poses = np.stack([solved.atVector(pose_key(i)) for i in range(n)]).reshape(n, 21, 3)
+    end_error = np.linalg.norm(joints(roots, poses) - clean, axis=-1).mean()
+    assert prior.frame_factor(0, 12).error(solved) < 0.5 * before
+    assert end_error < 0.8 * start_error
+
+
+def test_motion_windows_png_draws_the_shipped_samples(tmp_path, shipped):
+    from mocapgraph.priors.plots import motion_windows_png
+
+    path = motion_windows_png(feature_positions(shipped.sample(2, seed=0)), tmp_path / "strips.png", title="samples")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and not list(tmp_path.glob("*.tmp*"))

@@ -24,8 +24,8 @@ so ``β = 0.003`` asks for residuals of about 0.055 standard deviations of each 
 
 File format: an ``.npz`` without pickles: ``format_version``, ``body_model``, ``config`` and
 ``info`` (JSON), ``mean``, ``std``, ``sigma``, and one array ``net/<name>`` per entry of the
-network's ``state_dict`` (float16 by default: measured to change the held-out MPJPE by less
-than 0.1 mm).
+network's ``state_dict`` (float16 by default: it halves the file and changed the shipped
+model's held-out MPJPE by 0.002 mm).
 """
 
 from __future__ import annotations
