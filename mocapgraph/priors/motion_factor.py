@@ -69,19 +69,18 @@ JACOBIAN_CHUNK = 8
 windows, 1 thread: 14.6 ms per window against 26.8 ms in one pass; chunks of 2 or 24: 15.8, 15.9 ms)."""
 
 
-def canonical_point_jacobian(world_T_root0: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """``(P, 3, 6)``: derivative of canonical points ``q (P, 3)`` (held fixed in the world) with
-    respect to the Pose3 tangent (rotation first) of the window's first root ``world_T_root0 (4, 4)``."""
-    R0 = world_T_root0[:3, :3]
-    yaw, _ = canonical_frame(world_T_root0)
+def _d_canonical_d_root0(R0: np.ndarray, Rt: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``(P·3, 6)``: derivative of canonical points ``q (P, 3)`` (held fixed in the world) with
+    respect to the Pose3 tangent (rotation first) of the window's first root, whose rotation is
+    ``R0`` and whose canonical frame has ``Rt = Rz(γ)ᵀ``."""
     f = R0[:, 2]
     df = R0 @ _D_FORWARD_D_OMEGA
     d_yaw = (f[0] * df[1] - f[1] * df[0]) / (f[0] ** 2 + f[1] ** 2)
-    dq_dyaw = np.stack([q[:, 1], -q[:, 0], np.zeros(len(q))], axis=1)
-    J = np.empty((len(q), 3, 6))
-    J[:, :, :3] = dq_dyaw[:, :, None] * d_yaw
-    J[:, :, 3:] = -rot_z(yaw).T @ _GROUND @ R0
-    return J
+    J = np.zeros((len(q), 3, 6))
+    J[:, 0, :3] = q[:, 1:2] * d_yaw
+    J[:, 1, :3] = -q[:, 0:1] * d_yaw
+    J[:, :, 3:] = -Rt @ _GROUND @ R0
+    return J.reshape(-1, 6)
 
 
 class _FrameError:
@@ -113,8 +112,8 @@ class _FrameError:
         residual = (q.ravel() - decoded[self.rows]) / self.sigma
         if H is not None:
             scale = 1.0 / self.sigma[:, None]
-            d_state = np.einsum("ij,pjc->pic", Rt, d_joints[0]).reshape(POSITION_CHANNELS, -1) * scale
-            d_root0 = canonical_point_jacobian(root0, q).reshape(POSITION_CHANNELS, 6) * scale
+            d_state = np.matmul(Rt, d_joints[0]).reshape(POSITION_CHANNELS, -1) * scale
+            d_root0 = _d_canonical_d_root0(root0[:3, :3], Rt, q) * scale
             H[0] = -d_decoded[self.rows] * scale
             if first:
                 H[1] = d_root0 + d_state[:, :6]
