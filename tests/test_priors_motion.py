@@ -174,9 +174,10 @@ def test_save_and_load_round_trip_and_errors(tmp_path):
         arrays = dict(d)
     for key, change, message in [
         ("sigma", None, "missing key 'sigma'"),
-        ("net/decoder_out.bias", None, "missing key 'net/decoder_out.bias'"),
+        ("state/decoder_out.bias", None, "missing key 'state/decoder_out.bias'"),
         ("format_version", 99, "format_version 99"),
-        ("config", json.dumps({"width": 16, "latent": 4, "blocks": 1}), "'net/encoder_in.weight' has shape"),
+        ("config", json.dumps({"width": 16, "latent": 4, "blocks": 1}), "key 'state/encoder_in.weight' has shape"),
+        ("config", json.dumps({"width": 16}) + "}", "unreadable 'config'"),
     ]:
         broken = {k: v for k, v in arrays.items() if k != key}
         if change is not None:

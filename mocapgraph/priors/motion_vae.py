@@ -22,16 +22,15 @@ flat) so the decoder learns to use the latent before the KL term shapes it. β p
 the normalised residual variance (a Gaussian likelihood of variance β in normalised units),
 so ``β = 0.003`` asks for residuals of about 0.055 standard deviations of each channel.
 
-File format: an ``.npz`` without pickles: ``format_version``, ``body_model``, ``config`` and
-``info`` (JSON), ``mean``, ``std``, ``sigma``, and one array ``net/<name>`` per entry of the
-network's ``state_dict`` (float16 by default: it halves the file and changed the shipped
-model's held-out MPJPE by 0.002 mm).
+File format (:mod:`mocapgraph.priors.model_file`): an ``.npz`` without pickles:
+``format_version``, ``body_model``, ``config`` and ``info`` (JSON), ``mean``, ``std``, ``sigma``,
+and one array ``state/<name>`` per entry of the network's ``state_dict`` (float16 by default: it
+halves the file and changed the shipped model's held-out MPJPE by 0.002 mm).
 """
 
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -42,6 +41,7 @@ import torch
 from torch import nn
 
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.priors.model_file import load_weights, read_model_file, weight_arrays, write_model_file
 from mocapgraph.priors.motion_windows import CHANNELS, POSITION_CHANNELS, WINDOW, feature_positions
 
 DEFAULT_MOTION_VAE = Path(__file__).parent / "data" / "motion_vae.npz"
@@ -212,48 +212,24 @@ class MotionVAE:
 
     def save(self, path: str | Path, dtype=np.float16) -> Path:
         """Write an ``.npz`` (see the module docstring) with the weights as ``dtype``; atomic rename."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        weights = {f"net/{k}": v.numpy().astype(dtype) for k, v in self.net.state_dict().items()}
-        np.savez_compressed(
-            tmp, format_version=FORMAT_VERSION, body_model=self.body_model, config=json.dumps(asdict(self.config)),
-            info=json.dumps(self.info), mean=self.mean, std=self.std, sigma=self.sigma, **weights,
+        return write_model_file(
+            path, compressed=True, format_version=FORMAT_VERSION, body_model=self.body_model,
+            config=json.dumps(asdict(self.config)), info=json.dumps(self.info), mean=self.mean, std=self.std,
+            sigma=self.sigma, **weight_arrays(self.net, dtype),
         )  # fmt: skip
-        os.replace(tmp, path)
-        return path
 
     @classmethod
     def load(cls, path: str | Path) -> MotionVAE:
         """Read a file written by :meth:`save`; errors name the file and the key."""
-        path = Path(path)
-        if not path.exists():
-            raise MocapgraphError(f"{path}: motion VAE file not found")
+        arrays = read_model_file(path, "motion VAE", _KEYS, FORMAT_VERSION)
         try:
-            with np.load(path, allow_pickle=False) as d:
-                missing = [k for k in _KEYS if k not in d.files]
-                if missing:
-                    raise MocapgraphError(f"{path}: missing key {missing[0]!r}")
-                version = int(d["format_version"])
-                if version != FORMAT_VERSION:
-                    raise MocapgraphError(f"{path}: format_version {version}, this mocapgraph reads {FORMAT_VERSION}")
-                config = MotionVAEConfig(**json.loads(str(d["config"])))
-                body_model, info = str(d["body_model"]), json.loads(str(d["info"]))
-                arrays = {k: d[k].astype(float) for k in ("mean", "std", "sigma")}
-                net = MotionVAENet(config)
-                state = {}
-                for name, expected in net.state_dict().items():
-                    key = f"net/{name}"
-                    if key not in d.files:
-                        raise MocapgraphError(f"{path}: missing key {key!r}")
-                    if d[key].shape != tuple(expected.shape):
-                        raise MocapgraphError(
-                            f"{path}: {key!r} has shape {d[key].shape}, config {asdict(config)} needs {tuple(expected.shape)}"
-                        )
-                    state[name] = torch.as_tensor(d[key].astype(np.float32))
-        except (OSError, ValueError, TypeError) as exc:
-            raise MocapgraphError(f"{path}: not a readable motion VAE .npz ({exc})") from None
-        net.load_state_dict(state)
+            net = MotionVAENet(MotionVAEConfig(**json.loads(str(arrays["config"]))))
+            info = json.loads(str(arrays["info"]))
+        except (ValueError, TypeError) as exc:
+            raise MocapgraphError(f"{path}: unreadable 'config' or 'info' ({exc})") from None
+        load_weights(path, net, arrays)
+        body_model = str(arrays["body_model"])
+        arrays = {k: arrays[k].astype(float) for k in ("mean", "std", "sigma")}
         try:
             return cls(net, **arrays, body_model=body_model, info=info)
         except MocapgraphError as exc:
