@@ -11,7 +11,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.data_tools.motion_sources import procedural_motion
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keys import motion_latent_key, pose_key, root_key, shape_key
+from mocapgraph.graphs.keys import motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions, levenberg_marquardt
 from mocapgraph.priors.latent import BatchedDecoder
 from mocapgraph.priors.motion_factor import MotionVAEPrior
@@ -238,8 +238,10 @@ def test_frame_factor_jacobians_match_central_differences(body, walk, with_shape
     shape = random_shape(body, rng)
     values = _state_values(root, pose, shape if with_shape else None)
     prior = MotionVAEPrior(vae, body, [0, 3], **({"shape_key": shape_key()} if with_shape else {"fixed_shape": shape}))
-    for w in (0, 1):
+    for w, frame in enumerate(prior.initial_frames(values)):
         values.insert(motion_latent_key(w), rng.normal(size=TINY.latent))
+        # Off the tie's optimum, so every term of the frame's Jacobian is exercised.
+        values.insert(motion_frame_key(w), frame + rng.normal(scale=[0.05, 0.05, 0.1]))
     # BatchedDecoder feeds float32 latents; a float64 network after that keeps the differences in
     # z (with a step large enough for float32 latents) free of the network's rounding.
     vae.net.double()
@@ -247,7 +249,8 @@ def test_frame_factor_jacobians_match_central_differences(body, walk, with_shape
     for w, t in [(0, 0), (1, 0), (1, 7), (0, 24)]:
         factor = prior.frame_factor(w, t)
         keys = list(factor.keys())
-        assert len(keys) == len(set(keys)) == (4 if t == 0 else 5) - (not with_shape)
+        assert len(keys) == len(set(keys)) == 5 - (not with_shape)
+        assert keys[:4] == [motion_latent_key(w), motion_frame_key(w), root_key(3 * w + t), pose_key(3 * w + t)]
         A, b = factor.linearize(values).jacobian()
         np.testing.assert_allclose(-b, factor.whitenedError(values), atol=1e-9)
         column = 0
@@ -260,13 +263,44 @@ def test_frame_factor_jacobians_match_central_differences(body, walk, with_shape
             column += numeric.shape[1]
 
 
+@pytest.mark.parametrize("yaw", [0.4, np.pi - 1e-4, -np.pi + 1e-4])
+def test_tie_factor_jacobians_match_central_differences_and_wrap_the_yaw(body, walk, yaw):
+    """Yaw near ±π: the frame's yaw sits on the other side of the cut, the residual stays small."""
+    root = walk.root[:1].copy()
+    root[0, :3, :3] = axis_rotation("x", 0.3) @ axis_rotation("z", 0.2) @ root[0, :3, :3]
+    # Turn the root about world Z so its canonical yaw is `yaw`.
+    current, _ = canonical_frame(root[0])
+    root = _moved(root, yaw - current, [0.7, -0.2, 0.0])
+    values = _state_values(root, walk.pose[:1], None)
+    prior = MotionVAEPrior(_random_vae(), body, [0], fixed_shape=body.default_shape)
+    frame = prior.initial_frames(values)[0]
+    assert abs(frame[2] - yaw) < 1e-9
+    # Across the cut: the frame's yaw 2π away, plus a small offset on every row.
+    offset = np.array([2e-4, -3e-4, 5e-4])
+    values.insert(motion_frame_key(0), frame + offset - [0.0, 0.0, 2 * np.pi * np.sign(yaw)])
+    factor = prior.tie_factor(0)
+    assert list(factor.keys()) == [motion_frame_key(0), root_key(0)]
+    np.testing.assert_allclose(factor.unwhitenedError(values), offset, atol=1e-9)
+    A, b = factor.linearize(values).jacobian()
+    np.testing.assert_allclose(-b, factor.whitenedError(values), atol=1e-6)
+    column = 0
+    for key in factor.keys():
+        numeric = _numeric_jacobian(factor, values, key, 1e-6)
+        np.testing.assert_allclose(A[:, column : column + numeric.shape[1]], numeric, atol=1e-5 * np.abs(numeric).max())
+        column += numeric.shape[1]
+
+
 def test_one_batched_decoder_run_per_linearisation(body, walk):
     vae = _random_vae()
     values = _state_values(walk.root[:40], walk.pose[:40], body.default_shape)
     prior = MotionVAEPrior(vae, body, [0, 5, 15], shape_key=shape_key())
     graph = gtsam.NonlinearFactorGraph()
     prior.add_to(graph, values)
-    assert graph.size() == 3 * (1 + WINDOW) and values.exists(motion_latent_key(2))
+    assert graph.size() == 3 * (2 + WINDOW) and values.exists(motion_latent_key(2))
+    # The canonical frames start at their first roots' and the tie factors start at zero.
+    yaw, origin = canonical_frame(walk.root[5])
+    np.testing.assert_allclose(values.atVector(motion_frame_key(1)), [origin[0], origin[1], yaw], atol=1e-12)
+    assert prior.tie_factor(1).error(values) < 1e-20
     # The latents start at the encoder's μ of the current windows.
     starts = np.array([0, 5, 15])
     expected = vae.encode(motion_features(body, walk.root[:40], walk.pose[:40], starts))[0]

@@ -13,6 +13,7 @@ GTSAM keys are ``gtsam.symbol(char, index)``:
 | GPS/barometer offsets at navigation state ``n`` (slow sensor drift) | ``drift_key(n)`` = ``symbol('d', n)`` | ``Vector(4)`` |
 | pose-prior latent of body state ``i`` (pose VAE) | ``pose_latent_key(i)`` = ``symbol('z', i)`` | ``Vector(L)`` |
 | motion-prior latent of window ``w`` (motion VAE) | ``motion_latent_key(w)`` = ``symbol('m', w)`` | ``Vector(L)`` |
+| motion-prior canonical frame of window ``w`` (ground origin x, y in metres, yaw in radians) | ``motion_frame_key(w)`` = ``symbol('n', w)`` | ``Vector(3)`` |
 
 Body states are numbered in time order; cameras in capture order, frames in each camera's order.
 """
@@ -53,6 +54,10 @@ def pose_latent_key(i: int) -> int:
 
 def motion_latent_key(w: int) -> int:
     return gtsam.symbol("m", w)
+
+
+def motion_frame_key(w: int) -> int:
+    return gtsam.symbol("n", w)
 
 
 def nav_keys(n: int) -> tuple[int, int, int]:

@@ -45,6 +45,7 @@ from mocapgraph.graphs.frame_groups import SYNC_POLICIES, FrameGroup, frame_grou
 from mocapgraph.graphs.keys import (
     camera_key,
     camera_offset_key,
+    motion_frame_key,
     motion_latent_key,
     pose_key,
     pose_latent_key,
@@ -329,18 +330,20 @@ class _Problem:
         # A pose latent goes before its state: it touches that state alone, so eliminating it first
         # adds no fill-in (last, it would ride along the whole chain).
         latent = [pose_latent_key(i) for i in range(len(self.states))] if self.pose_vae is not None else None
-        # Every frame factor of a motion window touches the window's latent and its first root.
-        # Eliminated in its time slot, that first state would join all 25 states in one dense
-        # clique (13x slower solves on a 60 s chain, measured); so the first state and the latent
-        # go after the window's last state, and the chain is eliminated through them.
-        deferred = {i0: w for w, i0 in enumerate(self.windows)}
+        # Every frame factor of a motion window touches the window's latent and canonical frame
+        # (the frame's tie factor alone touches the window's first root). Eliminated early, either
+        # would join all 25 states in one dense clique; so both go after the window's last state,
+        # and the chain is eliminated through them (small frontier: 3 + 64 dims; with the first
+        # state itself deferred, 69 + 64).
+        deferred: dict[int, list[int]] = {}
+        for w, i0 in enumerate(self.windows):
+            deferred.setdefault(i0 + WINDOW - 1, []).extend([motion_frame_key(w), motion_latent_key(w)])
         timed = []
         for i, s in enumerate(self.states):
             keys = ([latent[i]] if latent else []) + [root_key(i), pose_key(i)]
+            timed.append((s.group.time, 1, keys))
             if i in deferred:
-                timed.append((self.states[i + WINDOW - 1].group.time, 2, keys + [motion_latent_key(deferred[i])]))
-            else:
-                timed.append((s.group.time, 1, keys))
+                timed.append((s.group.time, 2, deferred[i]))
         if self.refine:
             cams = self.capture.cameras
             timed += [(cams[c].timestamps[j], 0, [camera_key(c, j)]) for c, j in self.camera_members(self.states)]

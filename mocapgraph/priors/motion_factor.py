@@ -5,29 +5,40 @@ It gets a latent variable ``z_w = motion_latent_key(w)`` (``Vector(L)``) with th
 prior :func:`~mocapgraph.priors.latent.latent_prior_factor`, and one factor per frame ``t`` of
 the window tying that frame's 22 joint positions to the decoder's (66 rows):
 
-    r_t = (C(root_i0)⁻¹ · p_t − dec_pos(z_w)_t) / σ_t,
+    r_t = (C(c_w)⁻¹ · p_t − dec_pos(z_w)_t) / σ_t,
 
 where ``p_t (22, 3)`` are the world joint positions from forward kinematics of ``root_key(i0+t)``,
-``pose_key(i0+t)`` and the shape, ``C(root_i0)`` the window's canonical frame
-(:mod:`mocapgraph.priors.motion_windows`: ground projection of the first root, yaw turning its
-forward direction onto +Y), ``dec_pos(z_w)_t`` the decoded positions of frame ``t`` (canonical
+``pose_key(i0+t)`` and the shape, ``C(c_w)`` the window's canonical frame (a variable held on
+``C(root_i0)`` by a stiff tie factor, below; ``C(root_i0)`` is the ground projection of the
+first root with the yaw turning its forward direction onto +Y, :mod:`mocapgraph.priors.motion_windows`),
+``dec_pos(z_w)_t`` the decoded positions of frame ``t`` (canonical
 frame, metres) and ``σ_t (66,)`` the model's decoder σ of that frame. So the factors add
 ``½‖z_w‖² + Σ_t ½‖r_t‖²``, the negative log joint density ``−log p(z_w) p(positions | z_w)``
 of the VAE up to a constant (the positions' part of it: the 6D orientation channels are not tied).
 
-Keys of the frame-``t`` factor: ``(z_w, root_i0, root_t, pose_t, shape)``; for ``t = 0`` the
-frame's root *is* ``root_i0`` and the factor has ``(z_w, root_i0, pose_i0, shape)``, its root
-Jacobian the sum of both contributions. Without a shape key the shape is held fixed. A dense
-factor over the 25 states would make GTSAM eliminate a dense 25-state clique per window (10×
-slower solves, ``../shared/notes/gtsam_performance.md`` §4); this form keeps the graph sparse.
+**Canonical-frame variable.** Each window also has ``c_w = motion_frame_key(w)``
+(``Vector(3)``: the frame's ground origin ``o_x, o_y`` in metres and yaw ``γ`` in radians), and
+the frame factors read ``C`` from it: ``C = (Rz(γ), o = (o_x, o_y, 0))``. One stiff *tie* factor
+per window holds ``c_w`` on the first root's canonical frame:
 
-**Elimination order.** Every frame factor ties its state to the window's first root and latent,
-so those two must be eliminated *after* the window's other states: eliminated first, either one
-joins all 25 states in one dense clique. Measured on a 60 s chain (1801 states with unary priors
-and between factors on consecutive roots and poses, 73 windows of which the last overlaps,
-W = 128, L = 64; the chain alone solves in 0.38 s in time order): COLAMD 0.92 s per solve;
-per window its states 1–24, then its first state and ``z_w``: 1.22 s; states in time order with
-each ``z_w`` after its window's last state (the first state eliminated in its turn): 12.0 s.
+    r_tie = ((o_x, o_y) − (P t0)_xy, wrap(γ − γ(root_i0))) / σ_tie,
+
+``σ_tie`` = :data:`TIE_SIGMA_M` and :data:`TIE_SIGMA_RAD`, the yaw difference wrapped into
+``(−π, π]``. Keys of the frame-``t`` factor: ``(z_w, c_w, root_t, pose_t, shape)`` for every
+``t`` (without a shape key the shape is held fixed), of the tie factor ``(c_w, root_i0)``.
+A dense factor over the 25 states would make GTSAM eliminate a dense 25-state clique per window
+(10× slower solves, ``../shared/notes/gtsam_performance.md`` §4); this form keeps the graph sparse.
+
+**Why ``c_w``: the frontier.** With the frame read off ``root_i0`` directly, every frame factor
+touched the first root, so eliminating the window's states in time order kept ``root_i0`` and
+``pose_i0`` (its forward kinematics share the factor: 69 dims) plus ``z_w`` (64) in every clique
+along the window. Through ``c_w`` the frame factors only share ``c_w`` (3) and ``z_w``: the first
+state is eliminated in its time slot, and ``c_w`` and ``z_w`` after the window's last state
+(``_Problem.time_ordering`` of :mod:`mocapgraph.pipelines.aircap`). Either of them eliminated
+first joins all 25 states in one dense clique. Measured on the 10 s AirCap sequence fit (13
+windows, 2 cores): 0.37 s per linear solve against 0.50 s with the first state deferred with
+the latent (0.25 s without the prior); the fit's ra/pa-MPJPE unchanged to 0.1 mm with
+``σ_tie`` = 1 mm, 1 mrad.
 
 The decoder outputs and their Jacobians ``(25·66, L)`` of every window come from one
 :class:`~mocapgraph.priors.latent.BatchedDecoder`: the first factor of a linearisation triggers
@@ -37,11 +48,12 @@ Jacobians (Pose3 tangent, rotation first, right perturbation: ``R ← R Exp(ω)`
 at first order, which is GTSAM's retract for both of its Pose3 charts). With ``q = Rz(γ)ᵀ(p − o)``:
 
 - the frame's own variables: ``∂q/∂x = Rz(γ)ᵀ ∂p/∂x`` (native forward kinematics);
-- ``root_i0``'s rotation, through the yaw ``γ = atan2(−f_x, f_y)`` of its forward axis
+- ``c_w``: ``∂q/∂(o_x, o_y) = −Rz(γ)ᵀ[:, :2]`` and ``∂q/∂γ = (q_y, −q_x, 0)``;
+- the tie's ``root_i0`` rotation, through the yaw ``γ0 = atan2(−f_x, f_y)`` of its forward axis
   ``f = R0 e_z``: ``∂f/∂ω = R0 [[0, 1, 0], [−1, 0, 0], [0, 0, 0]]`` (``δf = R0 (ω × e_z)``),
-  ``∂γ = (f_x ∂f_y − f_y ∂f_x) / (f_x² + f_y²)``, and ``∂q/∂γ = (q_y, −q_x, 0)``;
-- ``root_i0``'s translation, through the origin ``o = P t0`` (``P = diag(1, 1, 0)``):
-  ``∂q/∂v = −Rz(γ)ᵀ P R0``.
+  ``∂γ0 = (f_x ∂f_y − f_y ∂f_x) / (f_x² + f_y²)``;
+- the tie's ``root_i0`` translation, through the origin ``P t0`` (``P = diag(1, 1, 0)``):
+  ``∂(P t0)/∂v = P R0``.
 """
 
 from __future__ import annotations
@@ -56,7 +68,7 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.reprojection import ShapeTableCache
-from mocapgraph.graphs.keys import motion_latent_key, pose_key, root_key
+from mocapgraph.graphs.keys import motion_frame_key, motion_latent_key, pose_key, root_key
 from mocapgraph.priors.latent import BatchedDecoder, latent_prior_factor
 from mocapgraph.priors.motion_vae import MotionVAE
 from mocapgraph.priors.motion_windows import POSITION_CHANNELS, WINDOW, canonical_frame, motion_features, rot_z
@@ -65,23 +77,41 @@ POSE_DIM = 3 * (NUM_JOINTS - 1)
 _D_FORWARD_D_OMEGA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
 """``δf = R0 (ω × e_z) = R0 · this · ω``."""
 _GROUND = np.diag([1.0, 1.0, 0.0])
+TIE_SIGMA_M = 1e-3
+"""σ of the tie factor's origin rows (metres)."""
+TIE_SIGMA_RAD = 1e-3
+"""σ of the tie factor's yaw row (radians)."""
 JACOBIAN_CHUNK = 8
 """Windows per vectorised Jacobian pass: 8 keeps a pass's tangents in cache (W = 128, L = 64, 72
 windows, 1 thread: 14.6 ms per window against 26.8 ms in one pass; chunks of 2 or 24: 15.8, 15.9 ms)."""
 
 
-def _d_canonical_d_root0(R0: np.ndarray, Rt: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """``(P·3, 6)``: derivative of canonical points ``q (P, 3)`` (held fixed in the world) with
-    respect to the Pose3 tangent (rotation first) of the window's first root, whose rotation is
-    ``R0`` and whose canonical frame has ``Rt = Rz(γ)ᵀ``."""
-    f = R0[:, 2]
-    df = R0 @ _D_FORWARD_D_OMEGA
-    d_yaw = (f[0] * df[1] - f[1] * df[0]) / (f[0] ** 2 + f[1] ** 2)
-    J = np.zeros((len(q), 3, 6))
-    J[:, 0, :3] = q[:, 1:2] * d_yaw
-    J[:, 1, :3] = -q[:, 0:1] * d_yaw
-    J[:, :, 3:] = -Rt @ _GROUND @ R0
-    return J.reshape(-1, 6)
+def _wrap(angle: float) -> float:
+    """``angle`` wrapped into ``(−π, π]``."""
+    return float(np.pi - np.mod(np.pi - angle, 2.0 * np.pi))
+
+
+class _TieError:
+    """The error function of a window's tie factor on ``(c_w, root_i0)`` (see the module docstring)."""
+
+    def __init__(self, keys: list[int]):
+        self.keys = keys
+
+    def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
+        frame = values.atVector(self.keys[0])
+        root0 = values.atPose3(self.keys[1]).matrix()
+        yaw0, origin0 = canonical_frame(root0)
+        residual = np.array([frame[0] - origin0[0], frame[1] - origin0[1], _wrap(frame[2] - yaw0)])
+        if H is not None:
+            R0 = root0[:3, :3]
+            f = R0[:, 2]
+            df = R0 @ _D_FORWARD_D_OMEGA
+            d_root0 = np.zeros((3, 6))
+            d_root0[:2, 3:] = -(_GROUND @ R0)[:2]
+            d_root0[2, :3] = -(f[0] * df[1] - f[1] * df[0]) / (f[0] ** 2 + f[1] ** 2)
+            H[0] = np.eye(3)
+            H[1] = d_root0
+        return residual
 
 
 class _FrameError:
@@ -97,34 +127,29 @@ class _FrameError:
         self.fk = native_module().fk
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
-        first = self.t == 0
-        latent, root0_key = self.keys[:2]
-        state_root_key, state_pose_key = (root0_key, self.keys[2]) if first else self.keys[2:4]
+        latent, frame_key, root_key_, pose_key_ = self.keys[:4]
         shape = self.fixed_shape if self.fixed_shape is not None else values.atVector(self.keys[-1])
-        root0 = values.atPose3(root0_key).matrix()
-        root = root0 if first else values.atPose3(state_root_key).matrix()
-        pose = values.atVector(state_pose_key).reshape(1, NUM_JOINTS - 1, 3)
+        ox, oy, yaw = values.atVector(frame_key)
+        root = values.atPose3(root_key_).matrix()
+        pose = values.atVector(pose_key_).reshape(1, NUM_JOINTS - 1, 3)
         arrays = self.cache.entry(shape).arrays
         joints, _, _, d_joints, _ = self.fk(*arrays, np.ascontiguousarray(root)[None], pose, H is not None)
-        yaw, origin = canonical_frame(root0)
         Rt = rot_z(yaw).T
-        q = (joints[0] - origin) @ Rt.T
+        q = (joints[0] - np.array([ox, oy, 0.0])) @ Rt.T
         decoded, d_decoded = self.decoder(values, latent, H is not None)
         residual = (q.ravel() - decoded[self.rows]) / self.sigma
         if H is not None:
             scale = 1.0 / self.sigma[:, None]
             d_state = np.matmul(Rt, d_joints[0]).reshape(POSITION_CHANNELS, -1) * scale
-            d_root0 = _d_canonical_d_root0(root0[:3, :3], Rt, q) * scale
+            d_frame = np.empty((len(q), 3, 3))
+            d_frame[:, :, :2] = -Rt[:, :2]
+            d_frame[:, 0, 2], d_frame[:, 1, 2], d_frame[:, 2, 2] = q[:, 1], -q[:, 0], 0.0
             H[0] = -d_decoded[self.rows] * scale
-            if first:
-                H[1] = d_root0 + d_state[:, :6]
-                H[2] = d_state[:, 6 : 6 + POSE_DIM]
-            else:
-                H[1] = d_root0
-                H[2] = d_state[:, :6]
-                H[3] = d_state[:, 6 : 6 + POSE_DIM]
+            H[1] = d_frame.reshape(POSITION_CHANNELS, 3) * scale
+            H[2] = d_state[:, :6]
+            H[3] = d_state[:, 6 : 6 + POSE_DIM]
             if self.fixed_shape is None:
-                H[len(self.keys) - 1] = d_state[:, 6 + POSE_DIM :]
+                H[4] = d_state[:, 6 + POSE_DIM :]
         return residual
 
 
@@ -172,16 +197,28 @@ class MotionVAEPrior:
         self.fixed_shape = None if fixed_shape is None else body.check_shape(fixed_shape)
         self.cache = table_cache if table_cache is not None else ShapeTableCache(body, "body")
         self.latent_keys = [motion_latent_key(w) for w in range(len(self.starts))]
+        self.frame_keys = [motion_frame_key(w) for w in range(len(self.starts))]
         self.decoder = BatchedDecoder(vae.decode_positions, self.latent_keys, vae.latent_dim, chunk_size=JACOBIAN_CHUNK)
 
     def frame_factor(self, w: int, t: int) -> gtsam.CustomFactor:
         """The factor tying frame ``t`` (0–24) of window ``w`` to the decoder (66 rows, unit noise)."""
-        i0 = self.starts[w]
-        keys = [self.latent_keys[w], root_key(i0)]
-        keys += [pose_key(i0)] if t == 0 else [root_key(i0 + t), pose_key(i0 + t)]
+        i = self.starts[w] + t
+        keys = [self.latent_keys[w], self.frame_keys[w], root_key(i), pose_key(i)]
         keys += [] if self.shape_key is None else [self.shape_key]
         error = _FrameError(self, t, keys, self.fixed_shape)
         return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(POSITION_CHANNELS), keys, error)
+
+    def tie_factor(self, w: int) -> gtsam.CustomFactor:
+        """The stiff factor holding window ``w``'s canonical frame ``c_w`` on its first root (3 rows)."""
+        keys = [self.frame_keys[w], root_key(self.starts[w])]
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([TIE_SIGMA_M, TIE_SIGMA_M, TIE_SIGMA_RAD]))
+        return gtsam.CustomFactor(noise, keys, _TieError(keys))
+
+    def initial_frames(self, values: gtsam.Values) -> np.ndarray:
+        """``(W, 3)``: each window's canonical frame ``(o_x, o_y, γ)`` of its first root in ``values``."""
+        roots = np.stack([values.atPose3(root_key(s)).matrix() for s in self.starts])
+        yaw, origin = canonical_frame(roots)
+        return np.column_stack([origin[:, :2], yaw])
 
     def initial_latents(self, values: gtsam.Values) -> np.ndarray:
         """``(W, L)``: the encoder's μ of each window of the body states in ``values``."""
@@ -199,12 +236,17 @@ class MotionVAEPrior:
         return self.vae.encode(features)[0]
 
     def add_to(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-        """Add every window's latent prior and 25 frame factors to ``graph``, and insert each
-        latent into ``values`` at the encoder's μ of the current estimate's window (the body
-        states and the shape must already be in ``values``)."""
-        for w, z in enumerate(self.initial_latents(values)):
+        """Add every window's latent prior, tie factor and 25 frame factors to ``graph``, and
+        insert each latent into ``values`` at the encoder's μ of the current estimate's window and
+        each canonical frame at its first root's (the body states and the shape must already be
+        in ``values``)."""
+        latents = self.initial_latents(values)
+        frames = self.initial_frames(values)
+        for w, z in enumerate(latents):
             values.insert(self.latent_keys[w], z)
+            values.insert(self.frame_keys[w], frames[w])
             graph.add(latent_prior_factor(self.latent_keys[w], self.vae.latent_dim))
+            graph.add(self.tie_factor(w))
             for t in range(WINDOW):
                 graph.add(self.frame_factor(w, t))
 
