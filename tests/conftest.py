@@ -53,3 +53,15 @@ def random_root(rng: np.random.Generator, frames: int) -> np.ndarray:
 @pytest.fixture
 def linear_table():
     return LinearShapeTable(seed=3)
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Torch on one thread for a module (restored after): training tiny networks is deterministic
+    only at a fixed thread count, and faster on one thread of a shared 2-core machine."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -27,12 +27,8 @@ from test_factors import perturbed, random_shape, variable_dim
 
 
 @pytest.fixture(scope="module", autouse=True)
-def one_torch_thread():
-    """The networks here are tiny: a second thread only adds contention (4× slower on a busy machine)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def _one_thread(one_torch_thread):
+    """Tiny networks: a second torch thread only adds contention (4–5× slower on a busy machine)."""
 
 
 @pytest.fixture(scope="module")

@@ -59,12 +59,8 @@ def distance_to_family(poses: np.ndarray) -> np.ndarray:
 
 
 @pytest.fixture(scope="module", autouse=True)
-def one_torch_thread():
-    """Tiny networks on a shared 2-core machine: a second torch thread only adds contention (5× slower)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def _one_thread(one_torch_thread):
+    """Tiny networks: a second torch thread only adds contention (4–5× slower on a busy machine)."""
 
 
 @pytest.fixture(scope="module")

@@ -34,13 +34,10 @@ VARIANTS = {"none": {}, "pose_gmm": {"pose_prior": "gmm"}, "pose_vae": {"pose_pr
 
 def _held_out_dir(motion_dir: Path, subjects: list[int], scratch: Path) -> Path:
     """A directory of links to the takes of ``subjects`` (the loaders read whole directories)."""
-    from mocapgraph.priors.training import _TAKE_NAME
+    from mocapgraph.priors.training import take_files, take_subject
 
-    if not motion_dir.is_dir():
-        raise MocapgraphError(f"{motion_dir}: motion directory not found (bench priors measures on held-out CMU takes)")
-    for path in motion_dir.iterdir():
-        match = _TAKE_NAME.fullmatch(path.name)
-        if match and int(match.group(1)) in subjects:
+    for path in take_files(motion_dir):
+        if take_subject(path) in subjects:
             os.symlink(path.resolve(), scratch / path.name)
     return scratch
 

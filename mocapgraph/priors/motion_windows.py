@@ -161,14 +161,10 @@ def load_motion_windows(
     directory when it does not exist or holds no ``cmu_*.npz`` take.
     """
     from mocapgraph.data_tools.cmu_motion import load_cmu_take, retarget
-    from mocapgraph.priors.training import _TAKE_NAME
+    from mocapgraph.priors.training import take_files, take_subject
 
     directory = Path(motion_dir)
-    if not directory.is_dir():
-        raise MocapgraphError(f"{directory}: motion directory not found")
-    files = sorted(p for p in directory.iterdir() if _TAKE_NAME.fullmatch(p.name))
-    if not files:
-        raise MocapgraphError(f"{directory}: no CMU takes (cmu_SS_TT.npz files) in the motion directory")
+    files = take_files(directory)
     features, subjects = [], []
     start = time.perf_counter()
     for i, path in enumerate(files):
@@ -176,7 +172,7 @@ def load_motion_windows(
         starts = window_starts(len(root), stride)
         if len(starts):
             features.append(motion_features(body, root, pose, starts))
-            subjects.append(np.full(len(starts), int(_TAKE_NAME.fullmatch(path.name).group(1))))
+            subjects.append(np.full(len(starts), take_subject(path)))
         if progress is not None and ((i + 1) % 100 == 0 or i + 1 == len(files)):
             progress(f"loaded {i + 1}/{len(files)} takes ({time.perf_counter() - start:.0f} s)")
     if not features:

@@ -55,16 +55,7 @@ def pose_grid_png(poses: np.ndarray, path: str | Path, body: BodyModel, title: s
         ax.set_box_aspect((1.2, 1.2, 1.8), zoom=1.6)
         ax.view_init(elev=10, azim=-70)
         ax.set_axis_off()
-    if title:
-        fig.suptitle(title, fontsize=11)
-    fig.subplots_adjust(left=0, right=1, bottom=0, top=0.95 if title else 1, wspace=0, hspace=0)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    return _save(fig, path, title)
 
 
 def motion_windows_png(windows_positions: np.ndarray, path: str | Path, frames=(0, 6, 12, 18, 24), title: str = "") -> Path:
@@ -101,6 +92,11 @@ def motion_windows_png(windows_positions: np.ndarray, path: str | Path, frames=(
             ax.set_axis_off()
             if r == 0:
                 ax.set_title(f"frame {frame}", fontsize=9)
+    return _save(fig, path, title)
+
+
+def _save(fig, path: str | Path, title: str) -> Path:
+    """Title, tight layout, then an atomic write of the PNG (80 dpi); closes the figure."""
     if title:
         fig.suptitle(title, fontsize=11)
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.95 if title else 1, wspace=0, hspace=0)
@@ -108,6 +104,6 @@ def motion_windows_png(windows_positions: np.ndarray, path: str | Path, frames=(
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp.png")
     fig.savefig(tmp, dpi=80)
-    plt.close(fig)
+    _pyplot().close(fig)
     tmp.replace(path)
     return path

@@ -34,6 +34,23 @@ class PoseFrames:
     subjects: np.ndarray
 
 
+def take_files(motion_dir: str | Path) -> list[Path]:
+    """The ``cmu_SS_TT[...].npz`` takes of ``motion_dir``, sorted; a MocapgraphError naming the
+    directory when it does not exist or holds none."""
+    directory = Path(motion_dir)
+    if not directory.is_dir():
+        raise MocapgraphError(f"{directory}: motion directory not found")
+    files = sorted(p for p in directory.iterdir() if _TAKE_NAME.fullmatch(p.name))
+    if not files:
+        raise MocapgraphError(f"{directory}: no CMU takes (cmu_SS_TT.npz files) in the motion directory")
+    return files
+
+
+def take_subject(path: Path) -> int:
+    """The CMU subject of a take file (``cmu_SS_…`` → ``SS``)."""
+    return int(_TAKE_NAME.fullmatch(path.name).group(1))
+
+
 def load_pose_frames(motion_dir: str | Path, body: BodyModel, stride: int = 4, progress=None) -> PoseFrames:
     """Every ``stride``-th frame of every take in ``motion_dir``, retargeted onto ``body``.
 
@@ -42,17 +59,12 @@ def load_pose_frames(motion_dir: str | Path, body: BodyModel, stride: int = 4, p
     """
     from mocapgraph.data_tools.cmu_motion import load_cmu_take, retarget
 
-    directory = Path(motion_dir)
-    if not directory.is_dir():
-        raise MocapgraphError(f"{directory}: motion directory not found")
-    files = sorted(p for p in directory.iterdir() if _TAKE_NAME.fullmatch(p.name))
-    if not files:
-        raise MocapgraphError(f"{directory}: no CMU takes (cmu_SS_TT.npz files) in the motion directory")
+    files = take_files(motion_dir)
     poses, subjects = [], []
     for i, path in enumerate(files):
         _, pose = retarget(load_cmu_take(path), body)
         poses.append(pose[::stride].reshape(-1, 63))
-        subjects.append(np.full(len(poses[-1]), int(_TAKE_NAME.fullmatch(path.name).group(1))))
+        subjects.append(np.full(len(poses[-1]), take_subject(path)))
         if progress is not None and ((i + 1) % 100 == 0 or i + 1 == len(files)):
             progress(f"loaded {i + 1}/{len(files)} takes")
     return PoseFrames(np.concatenate(poses), np.concatenate(subjects))
