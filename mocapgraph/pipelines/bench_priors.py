@@ -29,7 +29,12 @@ from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.errors import MocapgraphError
 
 HELD_OUT_TAKE = "cmu_15_01_s1.npz"  # "walk/wander", 41 s, subject 15 (held out by every shipped prior)
-VARIANTS = {"none": {}, "pose_gmm": {"pose_prior": "gmm"}, "pose_vae": {"pose_prior": "vae"}, "motion_vae": {"motion_prior": "vae"}}
+VARIANTS = {
+    "none": {"motion_prior": "none"},
+    "pose_gmm": {"pose_prior": "gmm", "motion_prior": "none"},
+    "pose_vae": {"pose_prior": "vae", "motion_prior": "none"},
+    "motion_vae": {"motion_prior": "vae"},
+}
 
 
 def _held_out_dir(motion_dir: Path, subjects: list[int], scratch: Path) -> Path:
