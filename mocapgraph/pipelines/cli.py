@@ -297,9 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="learned pose prior on every state (docs/priors.md); default none",
     )  # fmt: skip
     aircap.add_argument(
-        "--motion-prior", choices=("none", "vae"),
-        help="SmartMocap's motion prior on 25-state windows of the sequence fit (docs/priors.md); "
-        "default vae on the sequence fit's 30 Hz grid, none elsewhere",
+        "--motion-prior", choices=("none", "vae"), default="none",
+        help="SmartMocap's motion prior on 25-state windows of the sequence fit (docs/priors.md); default none",
     )  # fmt: skip
     aircap.add_argument("--detectors", help="comma-separated detector names (default: all)")
     aircap.add_argument("--gm-sigma-px", type=float, default=40.0, help="Geman-McClure scale in pixels (default 40)")
