@@ -85,8 +85,7 @@ class AircapOptions:
     # windows start every motion_window_stride states, each with its own latent. Off by default:
     # it lowers RA-MPJPE (6.3 -> 4.2 cm under heavy noise on held-out CMU motion) but its joint
     # covariances are overconfident (95 % coverage 0.71 at 60 s, 0.08 at 10 s of seed 1; 0.99
-    # and 0.93 without): its height residuals, one offset shared by every joint and frame, are
-    # counted as independent (docs/priors.md).
+    # and 0.93 without), not understood yet (docs/priors.md).
     motion_prior: str = "none"
     motion_window_stride: int = 25
     shape_prior_sigma: float = 0.25
