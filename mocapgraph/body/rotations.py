@@ -65,6 +65,13 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(flat).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 
+def relative_angle(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+    """``(...)`` radians in [0, π] between rotation matrices ``(..., 3, 3)`` (broadcast):
+    ``arccos((trace(R_aᵀ R_b) − 1) / 2)``, with ``trace(R_aᵀ R_b)`` the sum of elementwise products."""
+    trace = np.einsum("...ab,...ab->...", Ra, Rb)
+    return np.arccos(np.clip(0.5 * (trace - 1.0), -1.0, 1.0))
+
+
 def axis_rotation(axis: str, angle: float) -> np.ndarray:
     """Rotation matrix ``(3, 3)`` of ``angle`` radians about the named coordinate axis."""
     unit = {"x": [1.0, 0.0, 0.0], "y": [0.0, 1.0, 0.0], "z": [0.0, 0.0, 1.0]}[axis]

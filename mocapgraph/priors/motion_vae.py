@@ -373,16 +373,12 @@ def train_motion_vae(
     """
     from mocapgraph.priors.motion_factor import decoder_jacobian_ms
     from mocapgraph.priors.motion_windows import load_motion_windows
-    from mocapgraph.priors.training import split_by_subject
+    from mocapgraph.priors.training import held_out_split
 
     start = time.perf_counter()
     windows = load_motion_windows(motion_dir, body, stride, progress)
     load_s = time.perf_counter() - start
-    val = split_by_subject(windows.subjects, val_fraction, seed)
-    held_out = [int(s) for s in np.unique(windows.subjects[val])]
-    if progress is not None:
-        progress(f"{int((~val).sum())} training windows, {int(val.sum())} held-out windows "
-                 f"(subjects {', '.join(map(str, held_out))})")  # fmt: skip
+    val, held_out = held_out_split(windows.subjects, val_fraction, seed, "windows", progress)
     vae = fit_motion_vae(
         windows.features[~val], windows.features[val], MotionVAEConfig(width, latent, blocks), epochs, seed, beta,
         body_model=body.name, progress=progress,

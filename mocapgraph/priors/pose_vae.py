@@ -35,11 +35,11 @@ import numpy as np
 import torch
 
 from mocapgraph.body.model import BodyModel
-from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.body.rotations import relative_angle, rotvec_to_matrix
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.model_file import load_weights, read_model_file, weight_arrays, write_model_file
 from mocapgraph.priors.pose_gmm import _as_poses
-from mocapgraph.priors.training import load_pose_frames, moving_joints, split_by_subject
+from mocapgraph.priors.training import held_out_split, load_pose_frames, moving_joints
 
 FORMAT_VERSION = 1
 _KEYS = ("format_version", "body_model", "joints", "static_pose", "sigma", "config", "info")
@@ -245,7 +245,7 @@ class PoseVAE(torch.nn.Module):
         x = _as_poses(poses, 63)
         with torch.no_grad():
             R = self.decode_rotmat_torch(self.encode_torch(self._sixd(x))[0]).double().numpy()
-        return _angle_between(R, rotvec_to_matrix(x[:, self.dims].reshape(len(x), -1, 3))).mean(axis=1)
+        return relative_angle(R, rotvec_to_matrix(x[:, self.dims].reshape(len(x), -1, 3))).mean(axis=1)
 
     def elbo(self, poses, samples: int = 16, seed: int = 0) -> np.ndarray:
         """``(N,)`` nats: the evidence lower bound ``E_q[log p(θ_m | z)] − KL(q(z | θ) ‖ N(0, I))``
@@ -302,12 +302,6 @@ def load_default_pose_vae() -> PoseVAE:
 def _kl(mu: torch.Tensor, log_var: torch.Tensor) -> torch.Tensor:
     """``(B,)`` ``KL(N(μ, diag e^{log_var}) ‖ N(0, I))``."""
     return 0.5 * (mu * mu + torch.exp(log_var) - 1.0 - log_var).sum(-1)
-
-
-def _angle_between(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """``(...)`` radians between rotation matrices ``(..., 3, 3)``: ``arccos((trace(R_aᵀ R_b) − 1)/2)``."""
-    trace = np.einsum("...ab,...ab->...", Ra, Rb)
-    return np.arccos(np.clip(0.5 * (trace - 1.0), -1.0, 1.0))
 
 
 def fit_pose_vae(
@@ -435,11 +429,7 @@ def train_pose_vae(
     start = time.perf_counter()
     frames = load_pose_frames(motion_dir, body, stride, progress)
     load_s = time.perf_counter() - start
-    val = split_by_subject(frames.subjects, val_fraction, seed)
-    val_subjects = [int(s) for s in np.unique(frames.subjects[val])]
-    if progress is not None:
-        progress(f"{int((~val).sum())} training poses, {int(val.sum())} held-out poses "
-                 f"(subjects {', '.join(str(s) for s in val_subjects)})")  # fmt: skip
+    val, val_subjects = held_out_split(frames.subjects, val_fraction, seed, "poses", progress)
     vae = fit_pose_vae(
         frames.poses[~val], frames.poses[val], latent=latent, width=width, epochs=epochs, batch=batch,
         seed=seed, body_model=body.name, progress=progress,

@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from mocapgraph.body.model import BodyModel
-from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.body.rotations import relative_angle, rotvec_to_matrix
 from mocapgraph.body.skeleton import JOINT_NAMES
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.pose_gmm import PoseGMM, fit_pose_gmm
@@ -92,16 +92,22 @@ def split_by_subject(subjects: np.ndarray, val_fraction: float, seed: int) -> np
     return np.isin(subjects, held_out)
 
 
+def held_out_split(subjects: np.ndarray, val_fraction: float, seed: int, noun: str, progress=None) -> tuple[np.ndarray, list[int]]:
+    """:func:`split_by_subject` for a trainer: the ``(N,)`` validation mask and the held-out
+    subjects, reported to ``progress`` as ``"<n> training <noun>, <m> held-out <noun> (subjects …)"``."""
+    val = split_by_subject(subjects, val_fraction, seed)
+    held_out = [int(s) for s in np.unique(subjects[val])]
+    if progress is not None:
+        progress(f"{int((~val).sum())} training {noun}, {int(val.sum())} held-out {noun} (subjects {', '.join(map(str, held_out))})")
+    return val, held_out
+
+
 def nearest_mean_geodesic(gmm: PoseGMM, poses: np.ndarray) -> np.ndarray:
     """``(N,)`` radians: per pose, the smallest over components of the mean over the modelled joints
     of the rotation angle between the pose's and the component mean's joint rotation."""
     poses = gmm.select(poses)
     R = rotvec_to_matrix(poses.reshape(len(poses), -1, 3))
-    per_component = []
-    for mean in gmm.means:
-        # trace(R_aᵀ R_b) = Σ elementwise products; angle = arccos((trace − 1) / 2).
-        trace = np.einsum("njab,jab->nj", R, rotvec_to_matrix(mean.reshape(-1, 3)))
-        per_component.append(np.arccos(np.clip(0.5 * (trace - 1.0), -1.0, 1.0)).mean(axis=1))
+    per_component = [relative_angle(R, rotvec_to_matrix(mean.reshape(-1, 3))).mean(axis=1) for mean in gmm.means]
     return np.min(per_component, axis=0)
 
 
@@ -122,12 +128,9 @@ def train_pose_prior(
     start = time.perf_counter()
     frames = load_pose_frames(motion_dir, body, stride, progress)
     load_s = time.perf_counter() - start
-    val = split_by_subject(frames.subjects, val_fraction, seed)
+    val, held_out = held_out_split(frames.subjects, val_fraction, seed, "poses", progress)
     train_poses, val_poses = frames.poses[~val], frames.poses[val]
     joints = moving_joints(train_poses)
-    if progress is not None:
-        progress(f"{len(train_poses)} training poses, {len(val_poses)} held-out poses "
-                 f"(subjects {', '.join(str(s) for s in np.unique(frames.subjects[val]))})")  # fmt: skip
 
     def em_progress(iteration: int, mean_ll: float) -> None:
         if progress is not None and iteration % 10 == 0:
@@ -140,7 +143,7 @@ def train_pose_prior(
         "data": Path(motion_dir).name, "stride": stride, "seed": seed, "components": components,
         "train_poses": len(train_poses), "val_poses": len(val_poses),
         "modelled_joints": [JOINT_NAMES[1 + j] for j in joints],
-        "val_subjects": [int(s) for s in np.unique(frames.subjects[val])],
+        "val_subjects": held_out,
         "train_mean_log_likelihood": float(gmm.log_likelihood(train_poses).mean()),
         "val_mean_log_likelihood": float(gmm.log_likelihood(val_poses).mean()),
         "val_nearest_mean_geodesic_rad": float(nearest_mean_geodesic(gmm, val_poses).mean()),
