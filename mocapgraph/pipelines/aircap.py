@@ -53,11 +53,11 @@ from mocapgraph.graphs.keys import (
     shape_key,
 )
 from mocapgraph.graphs.solver import SolverOptions, solve_staged
-from mocapgraph.priors import load_default_pose_gmm, pose_gmm_factor
+from mocapgraph.priors import PoseGMM, load_default_pose_gmm, pose_gmm_factor
 from mocapgraph.priors.motion_factor import MotionVAEPrior
-from mocapgraph.priors.motion_vae import load_default_motion_vae
+from mocapgraph.priors.motion_vae import MotionVAE, load_default_motion_vae
 from mocapgraph.priors.motion_windows import WINDOW
-from mocapgraph.priors.pose_vae import load_default_pose_vae
+from mocapgraph.priors.pose_vae import PoseVAE, load_default_pose_vae
 from mocapgraph.priors.pose_vae_factor import PoseVAEPrior
 
 MODES = ("sequence", "per-frame")
@@ -232,10 +232,29 @@ def _upright(yaw: float, position: np.ndarray) -> gtsam.Pose3:
 # Graphs
 
 
-class _Problem:
-    """Everything the graphs of one run share: body, tables, camera priors, robust scale."""
+@dataclass
+class _LearnedPriors:
+    """The shipped learned priors the options ask for (None where not), loaded once per run."""
 
-    def __init__(self, capture: Capture, body: BodyModel, options: AircapOptions, priors: dict, states: list[_State]):
+    pose_gmm: PoseGMM | None = None
+    pose_vae: PoseVAE | None = None
+    motion_vae: MotionVAE | None = None
+
+    @classmethod
+    def load(cls, options: AircapOptions) -> _LearnedPriors:
+        return cls(
+            load_default_pose_gmm() if options.pose_prior == "gmm" else None,
+            load_default_pose_vae() if options.pose_prior == "vae" else None,
+            load_default_motion_vae() if options.motion_prior == "vae" else None,
+        )
+
+
+class _Problem:
+    """Everything the graphs of one run share: body, tables, camera priors, learned priors, robust scale."""
+
+    def __init__(
+        self, capture: Capture, body: BodyModel, options: AircapOptions, priors: dict, learned: _LearnedPriors, states: list[_State]
+    ):
         self.capture, self.body, self.options, self.priors, self.states = capture, body, options, priors, states
         self.scale = RobustScale(np.inf)
         formats = {o.fmt for s in states for o in s.observations}
@@ -243,9 +262,7 @@ class _Problem:
         self.intrinsics = [np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) for c in capture.cameras]
         self.refine = options.cameras == "refine"
         self.common: dict[int, np.ndarray] = {}  # camera index -> common_covariance
-        self.pose_gmm = load_default_pose_gmm() if options.pose_prior == "gmm" else None
-        self.pose_vae = load_default_pose_vae() if options.pose_prior == "vae" else None
-        self.motion_vae = load_default_motion_vae() if options.motion_prior == "vae" else None
+        self.pose_gmm, self.pose_vae, self.motion_vae = learned.pose_gmm, learned.pose_vae, learned.motion_vae
         self.windows = self.motion_windows(len(states)) if self.motion_vae is not None else []
 
     def camera_prior(self, c: int, j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -625,12 +642,14 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
         for cam_name, mask in track.inlier_detections(capture, having, detector=name).items():
             inliers.setdefault(cam_name, {})[name] = mask
 
+    learned = _LearnedPriors.load(options)
+
     def problem_for(sync: str) -> tuple[_Problem, np.ndarray]:
         groups = frame_groups(capture, sync, rate_hz=options.grid_hz)
         states = _observations(capture, groups, detectors, set(priors), inliers)
         if not any(s.observations for s in states):
             raise MocapgraphError(f"capture {capture.name!r}: no usable detections in any camera")
-        return _Problem(capture, body, options, priors, states), np.array([g.time for g in groups])
+        return _Problem(capture, body, options, priors, learned, states), np.array([g.time for g in groups])
 
     # The per-frame pass pairs the cameras' closest frames (several views per state, as the thesis
     # did); the sequence fit then starts from it, resampled onto its own states.
