@@ -31,24 +31,18 @@ class _JointsBelowGround:
     """Forward kinematics through the native kernel, then the hinge on each joint's height."""
 
     def __init__(self, cache: ShapeTableCache, keys, fixed_shape, sigma_m: float, ground_z: float):
-        from mocapgraph.body.native import native_module
-
         self.cache, self.keys, self.fixed_shape = cache, keys, fixed_shape
         self.sigma, self.ground = sigma_m, ground_z
-        self.fk = native_module().fk
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
         root_key, pose_key = self.keys[:2]
         shape = self.fixed_shape if len(self.keys) == 2 else values.atVector(self.keys[2])
-        entry = self.cache.entry(shape)
-        root = np.ascontiguousarray(values.atPose3(root_key).matrix())[None]
-        pose = values.atVector(pose_key).reshape(1, NUM_JOINTS - 1, 3)
-        joints, _, _, d_joints, _ = self.fk(*entry.arrays, root, pose, H is not None)
-        depth = self.ground - joints[0, :, 2]
+        joints, d_joints = self.cache.state_joints(values.atPose3(root_key).matrix(), values.atVector(pose_key), shape, H is not None)
+        depth = self.ground - joints[:, 2]
         below = depth > 0.0
         if H is not None:
             # d r_j / d x = −(d z_j / d x) / σ below the plane, 0 above.
-            J = np.where(below[:, None], -d_joints[0, :, 2, :] / self.sigma, 0.0)
+            J = np.where(below[:, None], -d_joints[:, 2, :] / self.sigma, 0.0)
             H[0] = J[:, 0:6]
             H[1] = J[:, 6 : 6 + 3 * (NUM_JOINTS - 1)]
             if len(self.keys) == 3:

@@ -88,6 +88,7 @@ class ShapeTableCache:
         self.size = int(size)
         self.builds = 0
         self._entries: list[_TableEntry] = []
+        self._fk = None  # the native forward kinematics, looked up on first use
 
     @property
     def num_keypoints(self) -> int:
@@ -114,6 +115,20 @@ class ShapeTableCache:
     def __call__(self, shape) -> BodyTable:
         """The :class:`BodyTable` of ``shape`` (``(S,)``), from the cache when the shape is known."""
         return self.entry(shape).table
+
+    def state_joints(self, root: np.ndarray, pose: np.ndarray, shape, jacobians: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """One body state's 22 joints through the native kernel (a cache of format ``"body"``).
+
+        ``root (4, 4)`` world_T_root, ``pose (63,)`` axis-angle, ``shape (S,)``. Returns the joints
+        ``(22, 3)`` (world, metres) and, when ``jacobians``, their derivatives ``(22, 3, 6 + 63 + S)``
+        with respect to the root's Pose3 tangent (rotation first), the joint rotations and the shape.
+        """
+        if self._fk is None:
+            self._fk = native_module().fk
+        joints, _, _, d_joints, _ = self._fk(
+            *self.entry(shape).arrays, np.ascontiguousarray(root)[None], np.asarray(pose).reshape(1, NUM_JOINTS - 1, 3), jacobians
+        )
+        return joints[0], (d_joints[0] if jacobians else None)
 
 
 def _check_rigid(T: np.ndarray, name: str) -> np.ndarray:

@@ -118,29 +118,23 @@ class _FrameError:
     """The error function of the frame-``t`` factor of one window (see the module docstring)."""
 
     def __init__(self, prior: MotionVAEPrior, t: int, keys: list[int], fixed_shape):
-        from mocapgraph.body.native import native_module
-
         self.decoder, self.cache, self.t = prior.decoder, prior.cache, t
         self.keys, self.fixed_shape = keys, fixed_shape
         self.sigma = prior.vae.position_sigma[t]
         self.rows = slice(t * POSITION_CHANNELS, (t + 1) * POSITION_CHANNELS)
-        self.fk = native_module().fk
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
         latent, frame_key, root_key_, pose_key_ = self.keys[:4]
         shape = self.fixed_shape if self.fixed_shape is not None else values.atVector(self.keys[-1])
         ox, oy, yaw = values.atVector(frame_key)
-        root = values.atPose3(root_key_).matrix()
-        pose = values.atVector(pose_key_).reshape(1, NUM_JOINTS - 1, 3)
-        arrays = self.cache.entry(shape).arrays
-        joints, _, _, d_joints, _ = self.fk(*arrays, np.ascontiguousarray(root)[None], pose, H is not None)
+        joints, d_joints = self.cache.state_joints(values.atPose3(root_key_).matrix(), values.atVector(pose_key_), shape, H is not None)
         Rt = rot_z(yaw).T
-        q = (joints[0] - np.array([ox, oy, 0.0])) @ Rt.T
+        q = (joints - np.array([ox, oy, 0.0])) @ Rt.T
         decoded, d_decoded = self.decoder(values, latent, H is not None)
         residual = (q.ravel() - decoded[self.rows]) / self.sigma
         if H is not None:
             scale = 1.0 / self.sigma[:, None]
-            d_state = np.matmul(Rt, d_joints[0]).reshape(POSITION_CHANNELS, -1) * scale
+            d_state = np.matmul(Rt, d_joints).reshape(POSITION_CHANNELS, -1) * scale
             d_frame = np.empty((len(q), 3, 3))
             d_frame[:, :, :2] = -Rt[:, :2]
             d_frame[:, 0, 2], d_frame[:, 1, 2], d_frame[:, 2, 2] = q[:, 1], -q[:, 0], 0.0
