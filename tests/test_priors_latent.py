@@ -2,8 +2,10 @@
 
 import gtsam
 import numpy as np
+import pytest
 import torch
 
+from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.keys import motion_latent_key, pose_latent_key
 from mocapgraph.priors.latent import BatchedDecoder, latent_prior_factor
 
@@ -67,3 +69,6 @@ def test_latent_prior_is_half_the_squared_norm():
     values = gtsam.Values()
     values.insert(pose_latent_key(0), np.array([1.0, -2.0, 0.5]))
     assert np.isclose(latent_prior_factor(pose_latent_key(0), 3).error(values), 0.5 * (1 + 4 + 0.25))
+    assert np.isclose(latent_prior_factor(pose_latent_key(0), 3, sigma=3.0).error(values), 0.5 * (1 + 4 + 0.25) / 9)
+    with pytest.raises(MocapgraphError, match="sigma"):
+        latent_prior_factor(pose_latent_key(0), 3, sigma=0.0)

@@ -26,7 +26,7 @@ from mocapgraph.priors.pose_vae import (
     sixd_to_rotmat,
     train_pose_vae,
 )
-from mocapgraph.priors.pose_vae_factor import PoseVAEPrior
+from mocapgraph.priors.pose_vae_factor import LATENT_SIGMA, PoseVAEPrior
 from test_cmu_motion import write_take
 from test_factors import max_rel_diff, numerical_jacobian
 
@@ -218,8 +218,8 @@ def test_train_pose_vae_on_a_tiny_motion_directory(tmp_path, capsys):
 # The factor
 
 
-def prior_graph(vae: PoseVAE, poses: np.ndarray) -> tuple[PoseVAEPrior, gtsam.NonlinearFactorGraph, gtsam.Values]:
-    prior = PoseVAEPrior(vae, range(len(poses)))
+def prior_graph(vae: PoseVAE, poses: np.ndarray, **kwargs) -> tuple[PoseVAEPrior, gtsam.NonlinearFactorGraph, gtsam.Values]:
+    prior = PoseVAEPrior(vae, range(len(poses)), **kwargs)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     for i, theta in enumerate(poses):
         values.insert(pose_key(i), theta)
@@ -242,8 +242,10 @@ def test_factor_jacobians_match_central_differences(tiny_vae):
 
 
 def test_factor_cost_is_the_negative_log_joint_density(tiny_vae):
+    """With the model's own latent prior (σ = 1); the default tempers it to σ = LATENT_SIGMA."""
     poses = pose_family(4, seed=10) + np.random.default_rng(11).normal(scale=0.1, size=(4, 63))
-    _, graph, values = prior_graph(tiny_vae, poses)
+    _, graph, values = prior_graph(tiny_vae, poses, latent_sigma=1.0)
+    _, tempered, _ = prior_graph(tiny_vae, poses)
     L, dims, sigma = 4, tiny_vae.dims, tiny_vae.sigma
     const = 0.5 * (L + len(dims)) * np.log(2 * np.pi) + np.log(sigma).sum()
     for i, theta in enumerate(poses):
@@ -253,6 +255,7 @@ def test_factor_cost_is_the_negative_log_joint_density(tiny_vae):
             tiny_vae.decode(z[None])[0, dims], np.diag(sigma**2)
         ).logpdf(theta[dims])
         np.testing.assert_allclose(cost, -log_joint - const, rtol=1e-5)
+        np.testing.assert_allclose(tempered.at(2 * i).error(values), 0.5 * z @ z / LATENT_SIGMA**2, rtol=1e-12)
 
 
 def test_one_batched_network_run_serves_every_state(tiny_vae):

@@ -19,6 +19,8 @@ import gtsam
 import numpy as np
 import torch
 
+from mocapgraph.errors import MocapgraphError
+
 
 class BatchedDecoder:
     """``f: (B, L) → (B, R)`` and its Jacobian ``(B, R, L)`` for the latent variables ``keys``.
@@ -79,6 +81,9 @@ class BatchedDecoder:
         self.evaluations += 1
 
 
-def latent_prior_factor(key: int, dim: int) -> gtsam.NonlinearFactor:
-    """``z ~ N(0, I)`` on one latent variable: ``½‖z‖²`` is its negative log density up to a constant."""
-    return gtsam.PriorFactorVector(int(key), np.zeros(dim), gtsam.noiseModel.Unit.Create(dim))
+def latent_prior_factor(key: int, dim: int, sigma: float = 1.0) -> gtsam.NonlinearFactor:
+    """``z ~ N(0, σ² I)`` on one latent variable, cost ``½‖z‖²/σ²``: the VAE's own prior with
+    ``σ = 1``; a wider ``σ`` tempers its pull toward the decoder's mode at ``z = 0``."""
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise MocapgraphError(f"latent prior: sigma must be finite and > 0, got {sigma}")
+    return gtsam.PriorFactorVector(int(key), np.zeros(dim), gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma)))
