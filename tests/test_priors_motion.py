@@ -11,7 +11,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.data_tools.motion_sources import procedural_motion
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keys import motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
+from mocapgraph.graphs.keys import ground_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions, levenberg_marquardt
 from mocapgraph.priors.latent import BatchedDecoder
 from mocapgraph.priors.motion_factor import MotionVAEPrior
@@ -233,7 +233,10 @@ def test_frame_factor_jacobians_match_central_differences(body, walk, with_shape
     # Away from the default shape: Anny's shape map has kinks at its anchors.
     shape = random_shape(body, rng)
     values = _state_values(root, pose, shape if with_shape else None)
+    # A tilted, raised ground about a pivot, so every term of the ground's Jacobian is exercised.
+    values.insert(ground_key(), np.array([0.05, -0.08, 0.3]))
     prior = MotionVAEPrior(vae, body, [0, 3], **({"shape_key": shape_key()} if with_shape else {"fixed_shape": shape}))
+    prior.ground_pivot = np.array([0.4, -1.1])
     for w, frame in enumerate(prior.initial_frames(values)):
         values.insert(motion_latent_key(w), rng.normal(size=TINY.latent))
         # Off the tie's optimum, so every term of the frame's Jacobian is exercised.
@@ -245,8 +248,8 @@ def test_frame_factor_jacobians_match_central_differences(body, walk, with_shape
     for w, t in [(0, 0), (1, 0), (1, 7), (0, 24)]:
         factor = prior.frame_factor(w, t)
         keys = list(factor.keys())
-        assert len(keys) == len(set(keys)) == 5 - (not with_shape)
-        assert keys[:4] == [motion_latent_key(w), motion_frame_key(w), root_key(3 * w + t), pose_key(3 * w + t)]
+        assert len(keys) == len(set(keys)) == 6 - (not with_shape)
+        assert keys[:5] == [motion_latent_key(w), motion_frame_key(w), ground_key(), root_key(3 * w + t), pose_key(3 * w + t)]
         A, b = factor.linearize(values).jacobian()
         np.testing.assert_allclose(-b, factor.whitenedError(values), atol=1e-9)
         column = 0
@@ -268,14 +271,19 @@ def test_tie_factor_jacobians_match_central_differences_and_wrap_the_yaw(body, w
     current, _ = canonical_frame(root[0])
     root = _moved(root, yaw - current, [0.7, -0.2, 0.0])
     values = _state_values(root, walk.pose[:1], None)
+    values.insert(ground_key(), np.zeros(3))
     prior = MotionVAEPrior(_random_vae(), body, [0], fixed_shape=body.default_shape)
     frame = prior.initial_frames(values)[0]
     assert abs(frame[2] - yaw) < 1e-9
+    # Then tilt and raise the ground a little, about a pivot: the frame follows the root seen from it.
+    values.update(ground_key(), np.array([0.03, -0.02, 0.2]))
+    prior.ground_pivot = np.array([-0.5, 2.0])
+    frame = prior.initial_frames(values)[0]
     # Across the cut: the frame's yaw 2π away, plus a small offset on every row.
     offset = np.array([2e-4, -3e-4, 5e-4])
     values.insert(motion_frame_key(0), frame + offset - [0.0, 0.0, 2 * np.pi * np.sign(yaw)])
     factor = prior.tie_factor(0)
-    assert list(factor.keys()) == [motion_frame_key(0), root_key(0)]
+    assert list(factor.keys()) == [motion_frame_key(0), ground_key(), root_key(0)]
     np.testing.assert_allclose(factor.unwhitenedError(values), offset, atol=1e-9)
     A, b = factor.linearize(values).jacobian()
     np.testing.assert_allclose(-b, factor.whitenedError(values), atol=1e-6)
@@ -292,10 +300,14 @@ def test_one_batched_decoder_run_per_linearisation(body, walk):
     prior = MotionVAEPrior(vae, body, [0, 5, 15], shape_key=shape_key())
     graph = gtsam.NonlinearFactorGraph()
     prior.add_to(graph, values)
-    assert graph.size() == 3 * (2 + WINDOW) and values.exists(motion_latent_key(2))
-    # The canonical frames start at their first roots' and the tie factors start at zero.
+    assert graph.size() == 1 + 3 * (2 + WINDOW) and values.exists(motion_latent_key(2))
+    np.testing.assert_array_equal(values.atVector(ground_key()), np.zeros(3))
+    # The ground turns about where the person is: the mean of the windows' first roots.
+    np.testing.assert_allclose(prior.ground_pivot, walk.root[[0, 5, 15], :2, 3].mean(0), atol=1e-12)
+    # The canonical frames start at their first roots' (origins from the pivot), the tie factors at zero.
     yaw, origin = canonical_frame(walk.root[5])
-    np.testing.assert_allclose(values.atVector(motion_frame_key(1)), [origin[0], origin[1], yaw], atol=1e-12)
+    expected = [origin[0] - prior.ground_pivot[0], origin[1] - prior.ground_pivot[1], yaw]
+    np.testing.assert_allclose(values.atVector(motion_frame_key(1)), expected, atol=1e-12)
     assert prior.tie_factor(1).error(values) < 1e-20
     # The latents start at the encoder's μ of the current windows.
     starts = np.array([0, 5, 15])
@@ -392,6 +404,29 @@ def test_lm_pulls_a_jittered_walk_toward_the_prior(body, walk, shipped):
     end_error = np.linalg.norm(joints(roots, poses) - clean, axis=-1).mean()
     assert prior.frame_factor(0, 12).error(solved) < 0.5 * before
     assert end_error < 0.8 * start_error
+
+
+def test_the_ground_variable_finds_a_raised_tilted_ground(body, walk, shipped):
+    """The walk on a ground raised 0.1 m and tilted 0.05 rad about X through the person, the body
+    held: the ground variable moves by that much against the walk on the world's z = 0."""
+    starts = [0, 25, 36]
+    pivot = walk.root[starts, :2, 3].mean(0)
+    ground = np.eye(4)
+    ground[:3, :3] = axis_rotation("x", 0.05)
+    ground[:3, 3] = np.array([pivot[0], pivot[1], 0.1]) - ground[:3, :3] @ [pivot[0], pivot[1], 0.0]
+    solved = []
+    for root in (walk.root, ground @ walk.root):
+        values = _state_values(root, walk.pose, None)
+        graph = gtsam.NonlinearFactorGraph()
+        for i in range(len(root)):
+            graph.add(gtsam.PriorFactorPose3(root_key(i), gtsam.Pose3(root[i]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-5)))
+            graph.add(gtsam.PriorFactorVector(pose_key(i), walk.pose[i].ravel(), gtsam.noiseModel.Isotropic.Sigma(63, 1e-5)))
+        prior = MotionVAEPrior(shipped, body, starts, fixed_shape=walk.shape, ground_sigmas=(1.0, 1.0))
+        prior.add_to(graph, values)
+        # The pivot is the windows' first roots (tilted, they move 4 cm: 2 mm of the ground's height).
+        np.testing.assert_allclose(prior.ground_pivot, root[starts, :2, 3].mean(0), atol=1e-12)
+        solved.append(levenberg_marquardt(graph, values, SolverOptions(max_iterations=30)).values.atVector(ground_key()))
+    np.testing.assert_allclose(solved[1] - solved[0], [0.05, 0.0, 0.1], atol=0.01)
 
 
 def test_motion_windows_png_draws_the_shipped_samples(tmp_path, shipped):

@@ -14,6 +14,7 @@ GTSAM keys are ``gtsam.symbol(char, index)``:
 | pose-prior latent of body state ``i`` (pose VAE) | ``pose_latent_key(i)`` = ``symbol('z', i)`` | ``Vector(L)`` |
 | motion-prior latent of window ``w`` (motion VAE) | ``motion_latent_key(w)`` = ``symbol('m', w)`` | ``Vector(L)`` |
 | motion-prior canonical frame of window ``w`` (ground origin x, y in metres, yaw in radians) | ``motion_frame_key(w)`` = ``symbol('n', w)`` | ``Vector(3)`` |
+| the ground plane (tilt about world X and Y in radians, height in metres) | ``ground_key()`` = ``symbol('g', 0)`` | ``Vector(3)`` |
 
 Body states are numbered in time order; cameras in capture order, frames in each camera's order.
 """
@@ -58,6 +59,10 @@ def motion_latent_key(w: int) -> int:
 
 def motion_frame_key(w: int) -> int:
     return gtsam.symbol("n", w)
+
+
+def ground_key() -> int:
+    return gtsam.symbol("g", 0)
 
 
 def nav_keys(n: int) -> tuple[int, int, int]:

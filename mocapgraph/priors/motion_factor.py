@@ -16,16 +16,35 @@ frame, metres) and ``σ_t (66,)`` the model's decoder σ of that frame. So the f
 ``½‖z_w‖² + Σ_t ½‖r_t‖²``, the negative log joint density ``−log p(z_w) p(positions | z_w)``
 of the VAE up to a constant (the positions' part of it: the 6D orientation channels are not tied).
 
+**Ground-plane variable.** The windows are relative to the ground, and the graph's world need
+not be level with it: one variable ``g = ground_key()`` (``Vector(3)``: tilts ``a, b`` about
+world X and Y in radians, height ``h`` in metres) places the plane through ``c = (x_c, y_c, h)``,
+``world_T_ground = (Rx(a) Ry(b), c)``, and the factors read every world point in its frame,
+``p' = Ry(b)ᵀ Rx(a)ᵀ (p − c)``. ``g`` has a Gaussian prior at the world's ``z = 0`` plane
+(:meth:`MotionVAEPrior.ground_prior_factor`). The pivot ``(x_c, y_c)`` is where the person is
+(the mean of the windows' first roots), so a tilt does not lever the height there: pivoted on
+the world origin, a 0.04 rad tilt put the body 17 cm under its ground on seed 1 (measured).
+
+Why the variable (measured on 10 s AirCap captures, seeds 1–6): without it the ground was the
+world's ``z = 0`` plane exactly, and 300 frames of windows pinned it. The fit then paid for the
+disagreement with the cameras' attitude offsets (camera orientation error 0.019 → 0.031 rad on
+seed 1), which moved the body's absolute position by decimetres while its covariance claimed
+centimetres: 95 % coverage of the joints 0.08–0.83 per seed, against 0.92–1.0 without the prior.
+With it, 0.14–1.0 (four seeds at 0.99–1.0). A lean of the whole motion in each window's canonical
+frame, tried instead (the decoder's reconstructions lean 0.03 rad), did not help: the shift was
+in the world's frame, not the person's.
+
 **Canonical-frame variable.** Each window also has ``c_w = motion_frame_key(w)``
 (``Vector(3)``: the frame's ground origin ``o_x, o_y`` in metres and yaw ``γ`` in radians), and
-the frame factors read ``C`` from it: ``C = (Rz(γ), o = (o_x, o_y, 0))``. One stiff *tie* factor
-per window holds ``c_w`` on the first root's canonical frame:
+the frame factors read ``C`` from it: ``C = (Rz(γ), o = (o_x, o_y, 0))`` in the ground's frame.
+One stiff *tie* factor per window holds ``c_w`` on the first root's canonical frame:
 
-    r_tie = ((o_x, o_y) − (P t0)_xy, wrap(γ − γ(root_i0))) / σ_tie,
+    r_tie = ((o_x, o_y) − (P t0')_xy, wrap(γ − γ(root_i0'))) / σ_tie,
 
-``σ_tie`` = :data:`TIE_SIGMA_M` and :data:`TIE_SIGMA_RAD`, the yaw difference wrapped into
-``(−π, π]``. Keys of the frame-``t`` factor: ``(z_w, c_w, root_t, pose_t, shape)`` for every
-``t`` (without a shape key the shape is held fixed), of the tie factor ``(c_w, root_i0)``.
+with ``root_i0' = world_T_ground⁻¹ root_i0``, ``σ_tie`` = :data:`TIE_SIGMA_M` and
+:data:`TIE_SIGMA_RAD`, the yaw difference wrapped into ``(−π, π]``. Keys of the frame-``t``
+factor: ``(z_w, c_w, g, root_t, pose_t, shape)`` for every ``t`` (without a shape key the shape
+is held fixed), of the tie factor ``(c_w, g, root_i0)``.
 A dense factor over the 25 states would make GTSAM eliminate a dense 25-state clique per window
 (10× slower solves, ``../shared/notes/gtsam_performance.md`` §4); this form keeps the graph sparse.
 
@@ -45,15 +64,19 @@ The decoder outputs and their Jacobians ``(25·66, L)`` of every window come fro
 one batched run (forward-mode over the L latent columns) for all windows, the others read it.
 
 Jacobians (Pose3 tangent, rotation first, right perturbation: ``R ← R Exp(ω)``, ``t ← t + R v``
-at first order, which is GTSAM's retract for both of its Pose3 charts). With ``q = Rz(γ)ᵀ(p − o)``:
+at first order, which is GTSAM's retract for both of its Pose3 charts). With ``A = Ry(b)ᵀ Rx(a)ᵀ``,
+``p' = A (p − c)`` and ``q = Rz(γ)ᵀ(p' − o)``:
 
-- the frame's own variables: ``∂q/∂x = Rz(γ)ᵀ ∂p/∂x`` (native forward kinematics);
+- the frame's own variables: ``∂q/∂x = Rz(γ)ᵀ A ∂p/∂x`` (native forward kinematics);
 - ``c_w``: ``∂q/∂(o_x, o_y) = −Rz(γ)ᵀ[:, :2]`` and ``∂q/∂γ = (q_y, −q_x, 0)``;
+- ``g``: ``∂q/∂a = Rz(γ)ᵀ (∂A/∂a)(p − c)``, the same for ``b``, ``∂q/∂h = −Rz(γ)ᵀ A e_z``;
 - the tie's ``root_i0`` rotation, through the yaw ``γ0 = atan2(−f_x, f_y)`` of its forward axis
-  ``f = R0 e_z``: ``∂f/∂ω = R0 [[0, 1, 0], [−1, 0, 0], [0, 0, 0]]`` (``δf = R0 (ω × e_z)``),
-  ``∂γ0 = (f_x ∂f_y − f_y ∂f_x) / (f_x² + f_y²)``;
-- the tie's ``root_i0`` translation, through the origin ``P t0`` (``P = diag(1, 1, 0)``):
-  ``∂(P t0)/∂v = P R0``.
+  in the ground's frame ``f = A R0 e_z``: ``∂f/∂ω = A R0 [[0, 1, 0], [−1, 0, 0], [0, 0, 0]]``
+  (``δf = A R0 (ω × e_z)``), ``∂γ0 = (f_x ∂f_y − f_y ∂f_x) / (f_x² + f_y²)``;
+- the tie's ``root_i0`` translation, through the origin ``P t0'`` (``P = diag(1, 1, 0)``,
+  ``t0' = A (t0 − c)``): ``∂(P t0')/∂v = P A R0``;
+- the tie's ``g``: ``∂f/∂a = (∂A/∂a) R0 e_z``, ``∂t0'/∂a = (∂A/∂a)(t0 − c)`` (and ``b``),
+  ``∂t0'/∂h = −A e_z``.
 """
 
 from __future__ import annotations
@@ -68,7 +91,7 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.reprojection import ShapeTableCache
-from mocapgraph.graphs.keys import motion_frame_key, motion_latent_key, pose_key, root_key
+from mocapgraph.graphs.keys import ground_key, motion_frame_key, motion_latent_key, pose_key, root_key
 from mocapgraph.priors.latent import BatchedDecoder, latent_prior_factor
 from mocapgraph.priors.motion_vae import MotionVAE
 from mocapgraph.priors.motion_windows import POSITION_CHANNELS, WINDOW, canonical_frame, motion_features, rot_z
@@ -76,11 +99,15 @@ from mocapgraph.priors.motion_windows import POSITION_CHANNELS, WINDOW, canonica
 POSE_DIM = 3 * (NUM_JOINTS - 1)
 _D_FORWARD_D_OMEGA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
 """``δf = R0 (ω × e_z) = R0 · this · ω``."""
-_GROUND = np.diag([1.0, 1.0, 0.0])
 TIE_SIGMA_M = 1e-3
 """σ of the tie factor's origin rows (metres)."""
 TIE_SIGMA_RAD = 1e-3
 """σ of the tie factor's yaw row (radians)."""
+GROUND_TILT_SIGMA_RAD = 0.05
+"""Default σ of the ground prior's tilts (radians)."""
+GROUND_HEIGHT_SIGMA_M = 0.05
+"""Default σ of the ground prior's height (metres): the decoder's joints sit up to 1.2 cm low on
+held-out walks, and a body shape away from the training subjects' moves them more."""
 JACOBIAN_CHUNK = 8
 """Windows per vectorised Jacobian pass: 8 keeps a pass's tangents in cache (W = 128, L = 64, 72
 windows, 1 thread: 14.6 ms per window against 26.8 ms in one pass; chunks of 2 or 24: 15.8, 15.9 ms)."""
@@ -91,26 +118,65 @@ def _wrap(angle: float) -> float:
     return float(np.pi - np.mod(np.pi - angle, 2.0 * np.pi))
 
 
-class _TieError:
-    """The error function of a window's tie factor on ``(c_w, root_i0)`` (see the module docstring)."""
+class _Ground:
+    """The ground plane ``g = (a, b, h)`` about the pivot ``(x_c, y_c)``: ``A = Ry(b)ᵀ Rx(a)ᵀ``
+    (world → ground rotation), its derivatives ``dA = (∂A/∂a, ∂A/∂b)`` and ``c = (x_c, y_c, h)``."""
 
-    def __init__(self, keys: list[int]):
-        self.keys = keys
+    def __init__(self, g, pivot):
+        a, b, h = (float(x) for x in g)
+        self.c = np.array([pivot[0], pivot[1], h])
+        ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
+        rx_t = np.array([[1.0, 0.0, 0.0], [0.0, ca, sa], [0.0, -sa, ca]])
+        ry_t = np.array([[cb, 0.0, -sb], [0.0, 1.0, 0.0], [sb, 0.0, cb]])
+        drx_t = np.array([[0.0, 0.0, 0.0], [0.0, -sa, ca], [0.0, -ca, -sa]])
+        dry_t = np.array([[-sb, 0.0, -cb], [0.0, 0.0, 0.0], [cb, 0.0, -sb]])
+        self.A = ry_t @ rx_t
+        self.dA = (ry_t @ drx_t, dry_t @ rx_t)
+
+    def lowered(self, points: np.ndarray) -> np.ndarray:
+        """``p − c`` of world points ``(..., 3)``."""
+        return points - self.c
+
+    def to_ground(self, world_T: np.ndarray) -> np.ndarray:
+        """``(..., 4, 4)`` world poses in the ground's frame."""
+        out = np.array(world_T, dtype=float)
+        out[..., :3, :3] = self.A @ out[..., :3, :3]
+        out[..., :3, 3] = self.lowered(out[..., :3, 3]) @ self.A.T
+        return out
+
+
+def _yaw_derivative(f: np.ndarray, df: np.ndarray) -> np.ndarray:
+    """``∂γ`` of ``γ = atan2(−f_x, f_y)`` for ``δf = df · δ`` (``df (3, n)``)."""
+    return (f[0] * df[1] - f[1] * df[0]) / (f[0] ** 2 + f[1] ** 2)
+
+
+class _TieError:
+    """The error function of a window's tie factor on ``(c_w, g, root_i0)`` (see the module docstring)."""
+
+    def __init__(self, prior: MotionVAEPrior, keys: list[int]):
+        self.prior, self.keys = prior, keys
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
         frame = values.atVector(self.keys[0])
-        root0 = values.atPose3(self.keys[1]).matrix()
-        yaw0, origin0 = canonical_frame(root0)
+        ground = _Ground(values.atVector(self.keys[1]), self.prior.ground_pivot)
+        world_root0 = values.atPose3(self.keys[2]).matrix()
+        yaw0, origin0 = canonical_frame(ground.to_ground(world_root0))
         residual = np.array([frame[0] - origin0[0], frame[1] - origin0[1], _wrap(frame[2] - yaw0)])
         if H is not None:
-            R0 = root0[:3, :3]
-            f = R0[:, 2]
-            df = R0 @ _D_FORWARD_D_OMEGA
+            AR0 = ground.A @ world_root0[:3, :3]
+            f = AR0[:, 2]
             d_root0 = np.zeros((3, 6))
-            d_root0[:2, 3:] = -(_GROUND @ R0)[:2]
-            d_root0[2, :3] = -(f[0] * df[1] - f[1] * df[0]) / (f[0] ** 2 + f[1] ** 2)
+            d_root0[:2, 3:] = -AR0[:2]
+            d_root0[2, :3] = -_yaw_derivative(f, AR0 @ _D_FORWARD_D_OMEGA)
+            t0 = ground.lowered(world_root0[:3, 3])
+            d_ground = np.zeros((3, 3))
+            for k, dA in enumerate(ground.dA):
+                d_ground[:2, k] = -(dA @ t0)[:2]
+                d_ground[2, k] = -_yaw_derivative(f, (dA @ world_root0[:3, 2])[:, None])[0]
+            d_ground[:2, 2] = ground.A[:2, 2]
             H[0] = np.eye(3)
-            H[1] = d_root0
+            H[1] = d_ground
+            H[2] = d_root0
         return residual
 
 
@@ -118,32 +184,39 @@ class _FrameError:
     """The error function of the frame-``t`` factor of one window (see the module docstring)."""
 
     def __init__(self, prior: MotionVAEPrior, t: int, keys: list[int], fixed_shape):
-        self.decoder, self.cache, self.t = prior.decoder, prior.cache, t
+        self.prior, self.decoder, self.cache, self.t = prior, prior.decoder, prior.cache, t
         self.keys, self.fixed_shape = keys, fixed_shape
         self.sigma = prior.vae.position_sigma[t]
         self.rows = slice(t * POSITION_CHANNELS, (t + 1) * POSITION_CHANNELS)
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
-        latent, frame_key, root_key_, pose_key_ = self.keys[:4]
+        latent, frame_key, ground_key_, root_key_, pose_key_ = self.keys[:5]
         shape = self.fixed_shape if self.fixed_shape is not None else values.atVector(self.keys[-1])
         ox, oy, yaw = values.atVector(frame_key)
+        ground = _Ground(values.atVector(ground_key_), self.prior.ground_pivot)
         joints, d_joints = self.cache.state_joints(values.atPose3(root_key_).matrix(), values.atVector(pose_key_), shape, H is not None)
         Rt = rot_z(yaw).T
-        q = (joints - np.array([ox, oy, 0.0])) @ Rt.T
+        lowered = ground.lowered(joints)
+        q = (lowered @ ground.A.T - np.array([ox, oy, 0.0])) @ Rt.T
         decoded, d_decoded = self.decoder(values, latent, H is not None)
         residual = (q.ravel() - decoded[self.rows]) / self.sigma
         if H is not None:
             scale = 1.0 / self.sigma[:, None]
-            d_state = np.matmul(Rt, d_joints).reshape(POSITION_CHANNELS, -1) * scale
+            d_state = np.matmul(Rt @ ground.A, d_joints).reshape(POSITION_CHANNELS, -1) * scale
             d_frame = np.empty((len(q), 3, 3))
             d_frame[:, :, :2] = -Rt[:, :2]
             d_frame[:, 0, 2], d_frame[:, 1, 2], d_frame[:, 2, 2] = q[:, 1], -q[:, 0], 0.0
+            d_ground = np.empty((len(q), 3, 3))
+            for k, dA in enumerate(ground.dA):
+                d_ground[:, :, k] = lowered @ (Rt @ dA).T
+            d_ground[:, :, 2] = -(Rt @ ground.A)[:, 2]
             H[0] = -d_decoded[self.rows] * scale
             H[1] = d_frame.reshape(POSITION_CHANNELS, 3) * scale
-            H[2] = d_state[:, :6]
-            H[3] = d_state[:, 6 : 6 + POSE_DIM]
+            H[2] = d_ground.reshape(POSITION_CHANNELS, 3) * scale
+            H[3] = d_state[:, :6]
+            H[4] = d_state[:, 6 : 6 + POSE_DIM]
             if self.fixed_shape is None:
-                H[4] = d_state[:, 6 + POSE_DIM :]
+                H[5] = d_state[:, 6 + POSE_DIM :]
         return residual
 
 
@@ -159,9 +232,13 @@ class MotionVAEPrior:
         fixed_shape: ``(S,)`` the shape when ``shape_key`` is None.
         table_cache: a :class:`~mocapgraph.factors.reprojection.ShapeTableCache` of ``body`` with
             format ``"body"`` to share with other factors (a new one when None).
+        ground_sigmas: σ of the ground prior at the world's ``z = 0`` plane: ``(tilt_rad,
+            height_m)``, the tilt's for both axes.
 
     Attributes:
         decoder: the :class:`~mocapgraph.priors.latent.BatchedDecoder` of all windows.
+        ground_pivot: ``(2,)`` world x, y (metres) the ground's tilts turn about; :meth:`add_to`
+            sets it to the mean of the windows' first roots when it inserts the ground.
     """
 
     def __init__(
@@ -172,6 +249,7 @@ class MotionVAEPrior:
         shape_key: int | None = None,
         fixed_shape=None,
         table_cache: ShapeTableCache | None = None,
+        ground_sigmas: tuple[float, float] = (GROUND_TILT_SIGMA_RAD, GROUND_HEIGHT_SIGMA_M),
     ):
         if (shape_key is None) == (fixed_shape is None):
             raise MocapgraphError("MotionVAEPrior: give exactly one of shape_key and fixed_shape")
@@ -186,6 +264,11 @@ class MotionVAEPrior:
             raise MocapgraphError(
                 f"MotionVAEPrior: needs a ShapeTableCache of format 'body', got {table_cache.keypoint_format!r}"
             )
+        tilt, height = (float(x) for x in ground_sigmas)
+        if not (np.isfinite([tilt, height]).all() and tilt > 0 and height > 0):
+            raise MocapgraphError(f"MotionVAEPrior: ground_sigmas (tilt_rad, height_m) must be finite and > 0, got {ground_sigmas!r}")
+        self.ground_sigmas = np.array([tilt, tilt, height])
+        self.ground_pivot = np.zeros(2)
         self.vae, self.body, self.starts = vae, body, [int(s) for s in starts]
         self.shape_key = None if shape_key is None else int(shape_key)
         self.fixed_shape = None if fixed_shape is None else body.check_shape(fixed_shape)
@@ -197,21 +280,31 @@ class MotionVAEPrior:
     def frame_factor(self, w: int, t: int) -> gtsam.CustomFactor:
         """The factor tying frame ``t`` (0–24) of window ``w`` to the decoder (66 rows, unit noise)."""
         i = self.starts[w] + t
-        keys = [self.latent_keys[w], self.frame_keys[w], root_key(i), pose_key(i)]
+        keys = [self.latent_keys[w], self.frame_keys[w], ground_key(), root_key(i), pose_key(i)]
         keys += [] if self.shape_key is None else [self.shape_key]
         error = _FrameError(self, t, keys, self.fixed_shape)
         return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(POSITION_CHANNELS), keys, error)
 
     def tie_factor(self, w: int) -> gtsam.CustomFactor:
         """The stiff factor holding window ``w``'s canonical frame ``c_w`` on its first root (3 rows)."""
-        keys = [self.frame_keys[w], root_key(self.starts[w])]
+        keys = [self.frame_keys[w], ground_key(), root_key(self.starts[w])]
         noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([TIE_SIGMA_M, TIE_SIGMA_M, TIE_SIGMA_RAD]))
-        return gtsam.CustomFactor(noise, keys, _TieError(keys))
+        return gtsam.CustomFactor(noise, keys, _TieError(self, keys))
+
+    def ground_prior_factor(self) -> gtsam.NonlinearFactor:
+        """The ground plane ``g`` near the world's ``z = 0`` plane, σ ``ground_sigmas``."""
+        return gtsam.PriorFactorVector(ground_key(), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(self.ground_sigmas))
+
+    def _ground_roots(self, values: gtsam.Values, states) -> np.ndarray:
+        """``(N, 4, 4)``: the roots of ``states`` in ``values``, in the frame of its ground ``g``."""
+        if not values.exists(ground_key()):
+            raise MocapgraphError("MotionVAEPrior: the ground plane (ground_key) is not in the values")
+        roots = np.stack([values.atPose3(root_key(i)).matrix() for i in states])
+        return _Ground(values.atVector(ground_key()), self.ground_pivot).to_ground(roots)
 
     def initial_frames(self, values: gtsam.Values) -> np.ndarray:
         """``(W, 3)``: each window's canonical frame ``(o_x, o_y, γ)`` of its first root in ``values``."""
-        roots = np.stack([values.atPose3(root_key(s)).matrix() for s in self.starts])
-        yaw, origin = canonical_frame(roots)
+        yaw, origin = canonical_frame(self._ground_roots(values, self.starts))
         return np.column_stack([origin[:, :2], yaw])
 
     def initial_latents(self, values: gtsam.Values) -> np.ndarray:
@@ -223,17 +316,24 @@ class MotionVAEPrior:
         if self.shape_key is not None and not values.exists(self.shape_key):
             raise MocapgraphError("MotionVAEPrior: the shape key is not in the values")
         shape = self.fixed_shape if self.shape_key is None else values.atVector(self.shape_key)
-        roots = np.stack([values.atPose3(root_key(i)).matrix() for i in states])
+        roots = self._ground_roots(values, states)
         poses = np.stack([values.atVector(pose_key(i)) for i in states]).reshape(len(states), NUM_JOINTS - 1, 3)
         row = {i: n for n, i in enumerate(states)}
         features = motion_features(self.body, roots, poses, [row[s] for s in self.starts], shape)
         return self.vae.encode(features)[0]
 
     def add_to(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-        """Add every window's latent prior, tie factor and 25 frame factors to ``graph``, and
-        insert each latent into ``values`` at the encoder's μ of the current estimate's window and
-        each canonical frame at its first root's (the body states and the shape must already be
-        in ``values``)."""
+        """Add the ground prior and every window's latent prior, tie factor and 25 frame factors
+        to ``graph``; insert the ground at the world's ``z = 0`` plane (unless ``values`` hold one),
+        each latent at the encoder's μ of the current estimate's window and each canonical frame
+        at its first root's (the body states and the shape must already be in ``values``)."""
+        if not values.exists(ground_key()):
+            missing = [s for s in self.starts if not values.exists(root_key(s))]
+            if missing:
+                raise MocapgraphError(f"MotionVAEPrior: body state {missing[0]} (root_key) is not in the values")
+            self.ground_pivot = np.mean([values.atPose3(root_key(s)).translation()[:2] for s in self.starts], axis=0)
+            values.insert(ground_key(), np.zeros(3))
+        graph.add(self.ground_prior_factor())
         latents = self.initial_latents(values)
         frames = self.initial_frames(values)
         for w, z in enumerate(latents):
