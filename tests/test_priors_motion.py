@@ -340,6 +340,8 @@ def test_prior_rejects_bad_arguments(body):
         MotionVAEPrior(vae, body, [0])
     with pytest.raises(MocapgraphError, match="window_starts"):
         MotionVAEPrior(vae, body, [-1], shape_key=shape_key())
+    with pytest.raises(MocapgraphError, match="ground_sigmas"):
+        MotionVAEPrior(vae, body, [0], shape_key=shape_key(), ground_sigmas=(0.05, float("nan")))
     with pytest.raises(MocapgraphError, match="body state 3"):
         three_states = _state_values(np.tile(np.eye(4), (3, 1, 1)), np.zeros((3, 63)), body.default_shape)
         MotionVAEPrior(vae, body, [0], shape_key=shape_key()).initial_latents(three_states)

@@ -83,9 +83,8 @@ class AircapOptions:
     pose_prior: str = "none"
     # SmartMocap's motion prior on 25-state windows of the sequence fit (needs 30 Hz grid states);
     # windows start every motion_window_stride states, each with its own latent. Off by default:
-    # it lowers RA-MPJPE (6.3 -> 4.2 cm under heavy noise on held-out CMU motion) but its joint
-    # covariances are overconfident (95 % coverage 0.71 at 60 s, 0.08 at 10 s of seed 1; 0.99
-    # and 0.93 without), not understood yet (docs/priors.md).
+    # it lowers RA-MPJPE (4.9 -> 3.3 cm, mean of seeds 1-6) but its joint covariances are less
+    # honest (pooled 95 % coverage 0.82 against 0.975 without; docs/priors.md).
     motion_prior: str = "none"
     motion_window_stride: int = 25
     shape_prior_sigma: float = 0.25
