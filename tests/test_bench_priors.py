@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.pipelines.bench_priors import _held_out_dir, corrupt
+from mocapgraph.pipelines.bench_priors import _held_out_takes, corrupt
 from conftest import random_root
 
 
@@ -39,12 +39,12 @@ def test_flip_turns_the_body_up_axis_into_its_forward_axis(motion):
         corrupt("melt", root, pose, np.random.default_rng(1))
 
 
-def test_held_out_directory_links_only_the_held_out_subjects(tmp_path):
-    source, scratch = tmp_path / "motion", tmp_path / "scratch"
-    source.mkdir(), scratch.mkdir()
+def test_held_out_takes_are_only_the_held_out_subjects(tmp_path):
+    source = tmp_path / "motion"
+    source.mkdir()
     for name in ("cmu_02_01.npz", "cmu_03_07_s1.npz", "cmu_15_01.npz", "index.json"):
         (source / name).write_bytes(b"x")
-    linked = _held_out_dir(source, [2, 15], scratch)
-    assert sorted(p.name for p in linked.iterdir()) == ["cmu_02_01.npz", "cmu_15_01.npz"]
+    held_out = _held_out_takes(source, [2, 15])
+    assert [p.name for p in held_out] == ["cmu_02_01.npz", "cmu_15_01.npz"]
     with pytest.raises(MocapgraphError, match="nowhere: motion directory not found"):
-        _held_out_dir(tmp_path / "nowhere", [2], scratch)
+        _held_out_takes(tmp_path / "nowhere", [2])

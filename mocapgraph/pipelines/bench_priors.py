@@ -17,8 +17,6 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -37,14 +35,11 @@ VARIANTS = {
 }
 
 
-def _held_out_dir(motion_dir: Path, subjects: list[int], scratch: Path) -> Path:
-    """A directory of links to the takes of ``subjects`` (the loaders read whole directories)."""
+def _held_out_takes(motion_dir: Path, subjects: list[int]) -> list[Path]:
+    """The takes of ``subjects`` in ``motion_dir``, in name order."""
     from mocapgraph.priors.training import take_files, take_subject
 
-    for path in take_files(motion_dir):
-        if take_subject(path) in subjects:
-            os.symlink(path.resolve(), scratch / path.name)
-    return scratch
+    return [path for path in take_files(motion_dir) if take_subject(path) in subjects]
 
 
 def corrupt(kind: str, root: np.ndarray, pose: np.ndarray, rng: np.random.Generator, fps: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
@@ -75,7 +70,7 @@ def _held_out_numbers(motion_dir: Path, out: dict) -> None:
     from mocapgraph.priors.motion_vae import load_default_motion_vae
     from mocapgraph.priors.motion_windows import WINDOW, motion_features, window_starts
     from mocapgraph.priors.pose_vae import load_default_pose_vae
-    from mocapgraph.priors.training import load_pose_frames, nearest_mean_geodesic
+    from mocapgraph.priors.training import nearest_mean_geodesic
 
     body = load_body_model()
     gmm, pose_vae, motion_vae = load_default_pose_gmm(), load_default_pose_vae(), load_default_motion_vae()
@@ -84,24 +79,25 @@ def _held_out_numbers(motion_dir: Path, out: dict) -> None:
         if sorted(model.info["val_subjects"]) != subjects:
             raise MocapgraphError(f"the shipped {name} held out subjects {model.info['val_subjects']}, the pose VAE {subjects}")
     out["val_subjects"] = subjects
-    with tempfile.TemporaryDirectory() as scratch:
-        held_out = _held_out_dir(motion_dir, subjects, Path(scratch))
-        poses = load_pose_frames(held_out, body).poses
-        out["val_poses"] = len(poses)
-        out["pose_vae_val_err_rad"] = round(float(pose_vae.geodesic_error(poses).mean()), 4)
-        out["pose_gmm_val_log_likelihood"] = round(float(gmm.log_likelihood(poses).mean()), 2)
-        out["pose_gmm_val_nearest_mean_rad"] = round(float(nearest_mean_geodesic(gmm, poses).mean()), 4)
-
-        rng = np.random.default_rng(0)
-        windows: dict[str, list] = {"real": [], "jitter": [], "skate": [], "flip": []}
-        for path in sorted(held_out.iterdir()):
-            root, pose = retarget(load_cmu_take(path), body)
-            starts = window_starts(len(root), WINDOW)
-            if not len(starts):
-                continue
-            windows["real"].append(motion_features(body, root, pose, starts))
-            for kind in ("jitter", "skate", "flip"):
-                windows[kind].append(motion_features(body, *corrupt(kind, root, pose, rng), starts))
+    # Each take is retargeted once, for the poses (every `stride`-th frame, as the pose priors
+    # were trained) and for the windows.
+    stride = pose_vae.info["stride"]
+    rng = np.random.default_rng(0)
+    frames, windows = [], {"real": [], "jitter": [], "skate": [], "flip": []}
+    for path in _held_out_takes(motion_dir, subjects):
+        root, pose = retarget(load_cmu_take(path), body)
+        frames.append(pose[::stride].reshape(-1, 63))
+        starts = window_starts(len(root), WINDOW)
+        if not len(starts):
+            continue
+        windows["real"].append(motion_features(body, root, pose, starts))
+        for kind in ("jitter", "skate", "flip"):
+            windows[kind].append(motion_features(body, *corrupt(kind, root, pose, rng), starts))
+    poses = np.concatenate(frames)
+    out["val_poses"] = len(poses)
+    out["pose_vae_val_err_rad"] = round(float(pose_vae.geodesic_error(poses).mean()), 4)
+    out["pose_gmm_val_log_likelihood"] = round(float(gmm.log_likelihood(poses).mean()), 2)
+    out["pose_gmm_val_nearest_mean_rad"] = round(float(nearest_mean_geodesic(gmm, poses).mean()), 4)
     stacked = {k: np.concatenate(v) for k, v in windows.items()}
     out["val_windows"] = len(stacked["real"])
     out["motion_vae_val_mpjpe_m"] = round(float(motion_vae.reconstruction_mpjpe(stacked["real"]).mean()), 4)
