@@ -315,6 +315,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_detect_parser(sub)
 
+    from mocapgraph.pipelines.batch import add_batch_parser
+
+    add_batch_parser(sub)
+
     priors = sub.add_parser("priors", help="learned priors: training").add_subparsers(
         dest="priors_command", required=True, metavar="SUBCOMMAND"
     )

@@ -1,0 +1,196 @@
+"""Run independent tasks (captures, chunks) on a local process pool or on a Ray cluster.
+
+``make_executor("local", workers=4)`` forks a pool of processes on this machine;
+``make_executor("ray", address="head:6379")`` sends the same tasks to a Ray cluster (the
+``[distributed]`` extra; docs/scaling.md). Both are context managers with one method,
+:meth:`Executor.map`, which returns the results in the order of the items.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from typing import Callable
+
+from mocapgraph.errors import MocapgraphError
+
+EXECUTORS = ("local", "ray")
+
+
+class TaskError(MocapgraphError):
+    """One or more tasks of :meth:`Executor.map` raised.
+
+    Attributes:
+        results: one entry per item, the task's result or None where it failed.
+        failures: ``{task index: message}`` of the failed tasks, in index order.
+    """
+
+    def __init__(self, message: str, results: list, failures: dict[int, str]):
+        super().__init__(message)
+        self.results = results
+        self.failures = failures
+
+    def __reduce__(self):
+        return TaskError, (str(self), self.results, self.failures)
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, MocapgraphError):
+        return str(exc)
+    return f"{type(exc).__name__}: {exc}"
+
+
+class Executor:
+    """Runs ``fn(item)`` for every item, as separate tasks; use it as a context manager."""
+
+    kind = ""
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release the workers (idempotent)."""
+
+    def map(self, fn: Callable, items: list, progress: str | None = None) -> list:
+        """``[fn(item) for item in items]``, computed as one task per item.
+
+        ``fn`` must be a module-level function (it is pickled by reference), and the items and
+        results picklable. Every task runs to the end even when some fail; then, if any failed,
+        a :class:`TaskError` names the first failed task's index and message and carries every
+        result. With ``progress`` set, prints ``"<progress>: k/n done"`` to stderr as tasks end.
+        """
+        items = list(items)
+        results: list = [None] * len(items)
+        failures: dict[int, str] = {}
+        causes: dict[int, BaseException] = {}
+        for done, (i, ok, value) in enumerate(self._run(fn, items), start=1):
+            if ok:
+                results[i] = value
+            else:
+                failures[i], causes[i] = _describe(value), value
+            if progress:
+                print(f"{progress}: {done}/{len(items)} done", file=sys.stderr, flush=True)
+        if failures:
+            first = min(failures)
+            more = f" ({len(failures) - 1} more failed: tasks {', '.join(map(str, sorted(failures)[1:]))})" if len(failures) > 1 else ""
+            raise TaskError(
+                f"task {first} of {len(items)} failed: {failures[first]}{more}", results, dict(sorted(failures.items()))
+            ) from causes[first]
+        return results
+
+    def _run(self, fn: Callable, items: list):
+        """Yields ``(index, ok, result or exception)`` once per item, in completion order."""
+        raise NotImplementedError
+
+
+class LocalExecutor(Executor):
+    """``workers`` forked processes on this machine; ``workers == 1`` runs every task in this process.
+
+    Fork (as ``aircap``'s per-frame pass does) lets the workers inherit loaded modules and
+    module-level state (body tables, gtsam objects) instead of importing and pickling them again.
+    """
+
+    kind = "local"
+
+    def __init__(self, workers: int):
+        self.workers = workers
+        self._pool = None
+
+    def _run(self, fn, items):
+        if self.workers == 1:
+            for i, item in enumerate(items):
+                try:
+                    yield i, True, fn(item)
+                except Exception as exc:  # reported per task, as from the pool
+                    yield i, False, exc
+            return
+        from concurrent.futures import as_completed
+
+        futures = {self._get_pool().submit(fn, item): i for i, item in enumerate(items)}
+        for future in as_completed(futures):
+            exc = future.exception()
+            yield futures[future], exc is None, future.result() if exc is None else exc
+
+    def _get_pool(self):
+        if self._pool is None:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("fork"))
+        return self._pool
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+
+class RayExecutor(Executor):
+    """Tasks on Ray: a cluster at ``address``, the instance this process already joined, or a
+    local instance of ``workers`` CPUs started here (and shut down by :meth:`close`)."""
+
+    kind = "ray"
+
+    def __init__(self, workers: int, address: str | None):
+        try:
+            import ray
+        except ImportError:
+            raise MocapgraphError("the ray executor needs the [distributed] extra: pip install 'mocapgraph[distributed]'") from None
+        self._ray = ray
+        self._started = False
+        if ray.is_initialized():
+            return
+        # No internet in many labs and clusters: Ray would otherwise try to report usage.
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+        quiet = dict(log_to_driver=False, logging_level=logging.WARNING, configure_logging=True)
+        try:
+            if address is None:
+                ray.init(num_cpus=workers, include_dashboard=False, **quiet)
+                self._started = True
+            else:
+                ray.init(address=address, **quiet)
+        except Exception as exc:
+            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+            raise MocapgraphError(f"could not start or join {where}: {_describe(exc)}") from exc
+
+    def _run(self, fn, items):
+        ray = self._ray
+        remote = ray.remote(fn)
+        pending = {remote.remote(item): i for i, item in enumerate(items)}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                i = pending.pop(ref)
+                try:
+                    yield i, True, ray.get(ref)
+                except ray.exceptions.RayTaskError as exc:
+                    yield i, False, exc.cause if exc.cause is not None else exc
+                except ray.exceptions.RayError as exc:  # a worker died or a node was lost
+                    yield i, False, exc
+
+    def close(self) -> None:
+        if self._started:
+            self._ray.shutdown()
+            self._started = False
+
+
+def make_executor(kind: str = "local", workers: int = 2, address: str | None = None) -> Executor:
+    """An executor of ``kind`` ("local" or "ray").
+
+    ``workers``: processes of the local pool, or CPUs of a local Ray instance (ignored when
+    joining a cluster, whose size is its own). ``address``: a Ray cluster to join (``"auto"``
+    or ``"host:6379"``); only with ``kind="ray"``.
+    """
+    if kind not in EXECUTORS:
+        raise MocapgraphError(f"executor {kind!r}: choose one of {', '.join(EXECUTORS)}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise MocapgraphError(f"workers: a whole number of processes >= 1, got {workers!r}")
+    if kind == "local":
+        if address is not None:
+            raise MocapgraphError(f"address {address!r}: only the ray executor joins a cluster")
+        return LocalExecutor(workers)
+    return RayExecutor(workers, address)
