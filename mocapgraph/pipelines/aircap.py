@@ -25,7 +25,7 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import axis_rotation
-from mocapgraph.body.skeleton import JOINT_NAMES, NUM_JOINTS
+from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.data_tools.capture import Capture, load_capture
 from mocapgraph.data_tools.result import CameraTrack, Result, write_result
 from mocapgraph.errors import MocapgraphError
@@ -42,6 +42,7 @@ from mocapgraph.factors.priors import (
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import SYNC_POLICIES, FrameGroup, frame_groups
+from mocapgraph.graphs.initialisation import neutral_pose
 from mocapgraph.graphs.keys import (
     camera_key,
     camera_offset_key,
@@ -53,6 +54,7 @@ from mocapgraph.graphs.keys import (
     shape_key,
 )
 from mocapgraph.graphs.solver import SolverOptions, solve_staged
+from mocapgraph.graphs.uncertainty import joint_covariances
 from mocapgraph.priors import PoseGMM, load_default_pose_gmm, pose_gmm_factor
 from mocapgraph.priors.motion_factor import MotionVAEPrior
 from mocapgraph.priors.motion_vae import MotionVAE, load_default_motion_vae
@@ -210,14 +212,6 @@ def detections_per_state(states: list[_State]) -> np.ndarray:
     for i, s in enumerate(states[:-1]):
         incoming[i + 1] = sum(int((o.weights > 0).sum()) for o in s.observations if o.fraction > 0)
     return own + incoming
-
-
-def neutral_pose() -> np.ndarray:
-    """``(21, 3)``: standing with the arms down (the T-pose's arms lowered by 70°)."""
-    pose = np.zeros((NUM_JOINTS - 1, 3))
-    pose[JOINT_NAMES.index("left_shoulder") - 1] = [0.0, 0.0, -1.2]
-    pose[JOINT_NAMES.index("right_shoulder") - 1] = [0.0, 0.0, 1.2]
-    return pose
 
 
 def _upright(yaw: float, position: np.ndarray) -> gtsam.Pose3:
@@ -584,37 +578,6 @@ def solve_sequence(problem: _Problem, start: _Estimate) -> tuple[_Estimate, gtsa
 # Uncertainty and output
 
 
-def joint_covariances(problem: _Problem, graph, values: gtsam.Values, estimate: _Estimate) -> tuple[np.ndarray, np.ndarray]:
-    """Per state: joints ``(N, 22, 3, 3)`` (m²) pushed through the forward-kinematics Jacobian,
-    and root ``(N, 6, 6)`` (Pose3 tangent, rotation first).
-
-    The joint marginal of (root, pose) of each state is exact; the shape, shared by all states, is
-    added as an independent term. Its cross-covariance with one state is neglected: querying it
-    costs about 100x more (0.4 s against 4 ms per state, measured), and the shape is pinned by the
-    whole sequence.
-    """
-    marginals = gtsam.Marginals(graph.linearize(values), values)
-    n = len(problem.states)
-    S = problem.body.shape_dim
-    shape_cov = marginals.marginalCovariance(shape_key())
-    joints_cov = np.full((n, NUM_JOINTS, 3, 3), np.nan)
-    root_cov = np.full((n, 6, 6), np.nan)
-    fk = problem.body.forward(
-        estimate.shape, np.stack([r.matrix() for r in estimate.roots]), estimate.poses.reshape(n, -1, 3), jacobians=True
-    )
-    diag = np.arange(NUM_JOINTS)
-    for i in range(n):
-        keys = [root_key(i), pose_key(i)]
-        joint = marginals.jointMarginalCovariance(gtsam.KeyVector(keys))
-        cov = np.zeros((69 + S, 69 + S))
-        cov[:69, :69] = np.block([[joint.at(a, b) for b in keys] for a in keys])
-        cov[69:, 69:] = shape_cov
-        J = fk.d_joints[i].reshape(NUM_JOINTS * 3, 69 + S)
-        joints_cov[i] = (J @ cov @ J.T).reshape(NUM_JOINTS, 3, NUM_JOINTS, 3)[diag, :, diag, :]
-        root_cov[i] = cov[:6, :6]
-    return joints_cov, root_cov
-
-
 def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_label: str = "") -> Result:
     """Run the pipeline on a loaded capture and return the result (nothing written)."""
     from mocapgraph.data_tools.tracker import track_person
@@ -708,7 +671,9 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     if options.covariances:
         if graph is None:
             graph, values = sequence_graph(problem, estimate)
-        result.covariances["joints"], result.covariances["root"] = joint_covariances(problem, graph, values, estimate)
+        marginals = gtsam.Marginals(graph.linearize(values), values)
+        roots = np.stack([r.matrix() for r in estimate.roots])
+        result.covariances["joints"], result.covariances["root"] = joint_covariances(body, marginals, roots, estimate.poses, estimate.shape)
     result.parameters["seconds"] = round(seconds, 3)
     result.parameters["per_frame_seconds"] = round(per_frame_seconds, 3)
     result.parameters["notes"] = notes

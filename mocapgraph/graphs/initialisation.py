@@ -1,0 +1,271 @@
+"""Initial values for uncalibrated captures: the person as the calibration target.
+
+Each view gives the body relative to its own camera (``camera_T_root``): from the fusion
+regressor (:mod:`mocapgraph.priors.fusion_regressor`) or, as a fallback that needs no network,
+from a PnP of the mean body to the view's keypoints (:func:`pnp_view`). Two views seeing the
+same body at the same instant then give the pose of one camera relative to the other,
+``ref_T_c = ref_T_root · (c_T_root)⁻¹`` (:func:`relative_cameras`). A static camera's pose is
+the robust mean of these over the frames; a moving camera's is taken per frame.
+
+:func:`ground_frame` then finds the ground plane under the person (a plane through the lowest
+foot points, or the body's mean up direction when the feet do not spread enough to tilt a
+plane) and builds SmartMocap's world: origin at the ground projection of the root in the
+first frame, +Z up, +Y the person's facing direction then.
+
+Frames: ``camera_T_root (T, 4, 4)``, OpenCV camera (x right, y down, z forward), metres;
+``ref_T_c`` maps camera ``c``'s frame into the reference camera's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from mocapgraph.body.model import BodyModel
+from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
+from mocapgraph.errors import MocapgraphError
+
+MIN_POINTS = 6
+"""Confident keypoints a view needs at a frame to place the body (PnP needs at least 4; 6
+keeps it off the degenerate, nearly planar configurations of a torso alone)."""
+MIN_CONFIDENCE = 0.3
+
+
+@dataclass
+class ViewBodies:
+    """The body as one camera sees it, per synchronised frame.
+
+    Attributes:
+        camera_T_root: ``(T, 4, 4)`` the root (pelvis) in the camera's OpenCV frame, metres.
+        pose: ``(T, 21, 3)`` local axis-angle, radians.
+        shape: ``(T, S)`` body shape.
+        valid: ``(T,)`` whether the view saw enough of the body at that frame.
+    """
+
+    camera_T_root: np.ndarray
+    pose: np.ndarray
+    shape: np.ndarray
+    valid: np.ndarray
+
+
+def neutral_pose() -> np.ndarray:
+    """``(21, 3)``: standing with the arms down (the T-pose's arms lowered by 70°)."""
+    pose = np.zeros((NUM_JOINTS - 1, 3))
+    pose[JOINT_NAMES.index("left_shoulder") - 1] = [0.0, 0.0, -1.2]
+    pose[JOINT_NAMES.index("right_shoulder") - 1] = [0.0, 0.0, 1.2]
+    return pose
+
+
+def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def pnp_view(body: BodyModel, keypoints: np.ndarray, fmt: str, K: np.ndarray, shape=None) -> ViewBodies:
+    """The mean body (``shape``, default the average; arms down) placed in one view by PnP.
+
+    Args:
+        keypoints: ``(T, F, 3)`` undistorted pixels and confidences of format ``fmt``, NaN where missing.
+        K: ``(3, 3)`` intrinsics of the (undistorted) image.
+
+    Each frame with at least :data:`MIN_POINTS` confident mapped points gets ``camera_T_root``
+    from OpenCV's SQPnP (globally optimal for the mean body's points) polished by Levenberg-
+    Marquardt; others are invalid (identity). A solution with the body behind the camera or
+    implausibly far (> 200 m) is invalid too.
+    """
+    shape = body.default_shape if shape is None else np.asarray(shape, dtype=float)
+    table = body.table(shape, fmt)
+    model = body.forward(shape, np.eye(4)[None], neutral_pose()[None], keypoints=fmt).keypoints[0]
+    mapped = np.asarray(table.mapped, dtype=bool)
+    T = len(keypoints)
+    out = np.tile(np.eye(4), (T, 1, 1))
+    valid = np.zeros(T, dtype=bool)
+    Kf = np.asarray(K, dtype=float)
+    for t in range(T):
+        conf = np.nan_to_num(keypoints[t, :, 2], nan=0.0)
+        use = mapped & (conf >= MIN_CONFIDENCE) & np.isfinite(keypoints[t, :, :2]).all(-1)
+        if use.sum() < MIN_POINTS:
+            continue
+        obj, img = model[use].astype(np.float64), keypoints[t, use, :2].astype(np.float64)
+        ok, rvec, tvec = cv2.solvePnP(obj, img, Kf, None, flags=cv2.SOLVEPNP_SQPNP)
+        if not ok:
+            continue
+        rvec, tvec = cv2.solvePnPRefineLM(obj, img, Kf, None, rvec, tvec)
+        depth = float(tvec[2, 0])
+        if not (0.1 < depth < 200.0):
+            continue
+        out[t] = _rigid(cv2.Rodrigues(rvec)[0], tvec[:, 0])
+        valid[t] = True
+    pose = np.repeat(neutral_pose()[None], T, axis=0)
+    return ViewBodies(out, pose, np.repeat(shape[None], T, axis=0), valid)
+
+
+def rotation_mean(R: np.ndarray, weights=None) -> np.ndarray:
+    """``(3, 3)`` chordal L2 mean of rotations ``(N, 3, 3)`` (the projection of their weighted sum)."""
+    w = np.ones(len(R)) if weights is None else np.asarray(weights, dtype=float)
+    U, _, Vt = np.linalg.svd(np.einsum("n,nij->ij", w, R))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def robust_pose_mean(poses: np.ndarray) -> np.ndarray:
+    """``(4, 4)``: the mean of rigid transforms ``(N, 4, 4)`` after dropping outliers.
+
+    Translation: the coordinate-wise median, then the mean of those within 3 median absolute
+    deviations (at least 5 cm); rotation: the chordal mean of the same inliers.
+    """
+    if len(poses) == 0:
+        raise MocapgraphError("robust_pose_mean: no poses")
+    t = poses[:, :3, 3]
+    centre = np.median(t, axis=0)
+    dist = np.linalg.norm(t - centre, axis=1)
+    inlier = dist <= max(3.0 * np.median(dist), 0.05)
+    R = rotation_mean(poses[inlier, :3, :3])
+    R_dist = np.linalg.norm(poses[:, :3, :3] - R, axis=(1, 2))
+    inlier &= R_dist <= max(3.0 * np.median(R_dist), 0.1)
+    if not inlier.any():
+        inlier[:] = True
+    return _rigid(rotation_mean(poses[inlier, :3, :3]), t[inlier].mean(axis=0))
+
+
+def relative_cameras(views: list[ViewBodies], moving: list[bool], reference: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Every camera's pose in the reference camera's frame, from the body both see.
+
+    Args:
+        views: per camera, its view of the body (all the same T frames).
+        moving: per camera, whether it moves (a static camera's frames are averaged).
+        reference: index of the reference camera.
+
+    Returns:
+        ``ref_T_c (C, T, 4, 4)`` and ``known (C, T)``: where the pose came from a frame both saw
+        (a moving camera's other frames are filled from its nearest known frames, linearly in
+        position and by the nearest rotation; a static camera is known everywhere once it
+        shares a frame with the reference; a camera that never shares one stays unknown).
+        With a moving reference, a static camera is still taken per frame relative to it.
+    """
+    C, T = len(views), len(views[reference].valid)
+    ref = views[reference]
+    out = np.tile(np.eye(4), (C, T, 1, 1))
+    known = np.zeros((C, T), dtype=bool)
+    known[reference] = True
+    for c, view in enumerate(views):
+        if c == reference:
+            continue
+        both = ref.valid & view.valid
+        if not both.any():
+            continue
+        rel = ref.camera_T_root[both] @ np.linalg.inv(view.camera_T_root[both])
+        if not moving[c] and not moving[reference]:
+            out[c] = robust_pose_mean(rel)
+            known[c] = True
+            continue
+        frames = np.flatnonzero(both)
+        out[c, frames] = rel
+        known[c, frames] = _temporal_inliers(rel[:, :3, 3])
+        out[c] = _fill_gaps(out[c], known[c])
+    return out, known
+
+
+def _temporal_inliers(positions: np.ndarray, half_window: int = 7) -> np.ndarray:
+    """``(N,)`` which per-frame positions ``(N, 3)`` lie near their neighbours' median: a PnP
+    of the mean body flips now and then (a person seen from afar is nearly planar), and a
+    moving camera does not jump."""
+    n = len(positions)
+    keep = np.ones(n, dtype=bool)
+    for i in range(n):
+        window = positions[max(0, i - half_window) : i + half_window + 1]
+        centre = np.median(window, axis=0)
+        spread = np.median(np.linalg.norm(window - centre, axis=1))
+        keep[i] = np.linalg.norm(positions[i] - centre) <= max(3.0 * spread, 0.3)
+    return keep
+
+
+def _fill_gaps(poses: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Frames outside ``known``: positions interpolated linearly (held at the ends), rotation of
+    the nearest known frame."""
+    frames = np.flatnonzero(known)
+    out = poses.copy()
+    t = np.arange(len(poses))
+    for a in range(3):
+        out[:, a, 3] = np.interp(t, frames, poses[frames, a, 3])
+    nearest = frames[np.abs(t[:, None] - frames[None, :]).argmin(axis=1)]
+    out[~known, :3, :3] = poses[nearest[~known], :3, :3]
+    return out
+
+
+def fuse_bodies(views: list[ViewBodies], ref_T_c: np.ndarray, known: np.ndarray) -> ViewBodies:
+    """One body per frame in the reference camera's frame: the views that saw it, each moved
+    into the reference frame, averaged (chordal mean of the roots' rotations, mean position;
+    mean joint rotation vectors and shape). Frames no view saw are filled from their neighbours."""
+    T = len(views[0].valid)
+    root = np.tile(np.eye(4), (T, 1, 1))
+    pose = np.zeros((T, NUM_JOINTS - 1, 3))
+    shape = np.zeros((T, views[0].shape.shape[1]))
+    seen = np.zeros(T, dtype=bool)
+    for t in range(T):
+        members = [c for c, v in enumerate(views) if v.valid[t] and known[c, t]]
+        if not members:
+            continue
+        roots = np.stack([ref_T_c[c, t] @ views[c].camera_T_root[t] for c in members])
+        root[t] = _rigid(rotation_mean(roots[:, :3, :3]), roots[:, :3, 3].mean(axis=0))
+        pose[t] = np.mean([views[c].pose[t] for c in members], axis=0)
+        shape[t] = np.mean([views[c].shape[t] for c in members], axis=0)
+        seen[t] = True
+    if not seen.any():
+        raise MocapgraphError("no frame has a view that saw enough of the body to place it")
+    root = _fill_gaps(root, seen)
+    frames = np.flatnonzero(seen)
+    nearest = frames[np.abs(np.arange(T)[:, None] - frames[None, :]).argmin(axis=1)]
+    pose[~seen], shape[~seen] = pose[nearest[~seen]], shape[nearest[~seen]]
+    return ViewBodies(root, pose, shape, seen)
+
+
+@dataclass
+class GroundEstimate:
+    """SmartMocap's world in the reference camera's frame, and how it was found.
+
+    Attributes:
+        ref_T_world: ``(4, 4)``: world (ground plane, Z up, origin under the first root, +Y its
+            facing direction) into the reference camera's frame.
+        from_feet: whether the plane's tilt came from the feet's spread (else from the body's
+            mean up direction: a person standing still does not tilt a plane).
+        foot_spread_m: the feet points' second-largest standard deviation in the plane, metres.
+    """
+
+    ref_T_world: np.ndarray
+    from_feet: bool
+    foot_spread_m: float
+
+
+MIN_FOOT_SPREAD_M = 0.5
+"""The feet's second-largest horizontal spread (std, metres) above which they tilt the plane."""
+
+
+def ground_frame(body: BodyModel, bodies: ViewBodies, shape) -> GroundEstimate:
+    """The ground plane under the body's feet (``bodies`` in the reference camera's frame)."""
+    fk = body.forward(shape, bodies.camera_T_root, bodies.pose, keypoints="body")
+    feet = [BODY_KEYPOINT_NAMES.index(n) for n in ("left_big_toe", "right_big_toe", "left_heel", "right_heel", "left_ankle", "right_ankle")]
+    points = fk.keypoints[:, feet]  # (T, 6, 3)
+    # The body's up (+Y of the root) averaged over the frames; the camera's y points down.
+    up = bodies.camera_T_root[bodies.valid][:, :3, 1].mean(axis=0)
+    up /= np.linalg.norm(up)
+    lowest = points[np.arange(len(points)), np.argmin(points @ up, axis=1)]  # (T, 3)
+    lowest = lowest[bodies.valid]
+    centred = lowest - lowest.mean(axis=0)
+    evals, evecs = np.linalg.eigh(np.cov(centred.T) if len(lowest) > 3 else np.eye(3) * 1e-6)
+    spread = float(np.sqrt(max(evals[1], 0.0)))
+    from_feet = spread >= MIN_FOOT_SPREAD_M
+    normal = evecs[:, 0] * np.sign(evecs[:, 0] @ up) if from_feet else up
+    # The soles touch the ground at the lowest contacts: a low quantile, robust to a lifted foot.
+    height = float(np.quantile(lowest @ normal, 0.1))
+    root0 = bodies.camera_T_root[0]
+    origin = root0[:3, 3] - (root0[:3, 3] @ normal - height) * normal
+    facing = root0[:3, 2] - (root0[:3, 2] @ normal) * normal
+    if np.linalg.norm(facing) < 1e-6:  # lying flat, facing the sky: any horizontal direction
+        facing = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    y = facing / np.linalg.norm(facing)
+    x = np.cross(y, normal)
+    return GroundEstimate(_rigid(np.column_stack([x, y, normal]), origin), from_feet, spread)
