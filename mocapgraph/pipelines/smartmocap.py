@@ -1,0 +1,404 @@
+"""``mocapgraph run smartmocap``: body and every camera, static or moving, uncalibrated, in the
+ground plane's frame (SmartMocap, Saini et al., RA-L 2023).
+
+1. **Initialise**: per view, the body relative to the camera (fusion regressor or PnP of the
+   mean body); cameras relative to a reference camera (the first static one) from the body both
+   see; the ground plane under the feet; SmartMocap's world: origin at the ground projection
+   of the first root, Z up, +Y the person's facing direction then.
+2. **Chunks** of 25 states, each solved in three phases (cameras alone; + roots; + everything
+   but the first state's root), in parallel on an executor (local processes or Ray).
+3. **Stitch** neighbouring chunks on their shared state and shared static cameras, pairwise and
+   then pairs of pairs, so that a chunk's error in heading moves only its own subtree instead of
+   accumulating along the sequence.
+4. **Optimise-final**: the whole sequence with every term: 2D reprojection (Geman-McClure),
+   motion prior (25-state windows), root, joint-rotation and 3D joint smoothness, camera
+   smoothness, pose and shape priors, human and camera ground penetration.
+
+The world's gauge: the ground is z = 0 (the motion prior's ground held there), and the first
+root's horizontal position and heading are held by a stiff prior; its height and tilt only by
+a weak one, so the data decide them. The scale comes from the body model's size alone.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from mocapgraph.body import load_body_model
+from mocapgraph.body.model import BodyModel
+from mocapgraph.data_tools.capture import Capture, load_capture
+from mocapgraph.data_tools.result import CameraTrack, Result, write_result
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.graphs.initialisation import fuse_bodies, ground_frame, relative_cameras, rotation_mean
+from mocapgraph.graphs.keys import motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
+from mocapgraph.graphs.solver import solve_staged
+from mocapgraph.graphs.uncertainty import joint_covariances
+from mocapgraph.pipelines.uncalibrated import Estimate, GraphOptions, Rig, RigGraph, hold, log, rig_from_capture, view_bodies
+from mocapgraph.priors.motion_windows import WINDOW
+
+INITIALISERS = ("auto", "regressor", "pnp")
+MOTION_PRIORS = ("vae", "none")
+
+
+@dataclass
+class SmartmocapOptions:
+    """Parameters of the SmartMocap pipeline (units in the names)."""
+
+    initialiser: str = "auto"
+    motion_prior: str = "vae"
+    chunk_size: int = WINDOW
+    chunk_iterations: int = 10
+    final_iterations: int = 30
+    executor: str = "local"
+    workers: int = 2
+    address: str | None = None
+    detectors: tuple[str, ...] | None = None
+    # The first root holds the world's gauge: stiff horizontally and in heading, weak in height and tilt.
+    gauge_sigmas: tuple[float, float] = (1e-3, 0.1)
+    covariances: bool = True
+    progress: bool = True
+    graph: GraphOptions = field(default_factory=GraphOptions)
+
+    def check(self) -> None:
+        if self.initialiser not in INITIALISERS:
+            raise MocapgraphError(f"initialiser {self.initialiser!r}: choose one of {', '.join(INITIALISERS)}")
+        if self.motion_prior not in MOTION_PRIORS:
+            raise MocapgraphError(f"motion_prior {self.motion_prior!r}: choose one of {', '.join(MOTION_PRIORS)}")
+        if not (isinstance(self.chunk_size, int) and 2 <= self.chunk_size):
+            raise MocapgraphError(f"chunk_size: a whole number of states >= 2, got {self.chunk_size!r}")
+        if self.motion_prior == "vae" and self.chunk_size != WINDOW:
+            raise MocapgraphError(f"chunk_size: the motion prior's windows are {WINDOW} states; use {WINDOW} or motion_prior 'none'")
+        if not (isinstance(self.workers, int) and self.workers >= 1):
+            raise MocapgraphError(f"workers: a whole number of processes >= 1, got {self.workers!r}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Graphs
+
+
+def _gauge_factor(estimate: Estimate, sigmas: tuple[float, float]) -> gtsam.PriorFactorPose3:
+    """The first root's horizontal position and heading held stiffly, its tilt and height weakly.
+
+    The root's frame has +Y up (body axes), so near upright its tangent's rotation about y is the
+    heading and its translation along x and z the horizontal position.
+    """
+    stiff, weak = sigmas
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([weak, stiff, weak, stiff, weak, stiff]))
+    return gtsam.PriorFactorPose3(root_key(0), gtsam.Pose3(estimate.roots[0]), noise)
+
+
+def _motion_windows(n: int) -> list[int]:
+    """Window starts over ``n`` states: side by side, plus one ending at the last state."""
+    starts = list(range(0, n - WINDOW + 1, WINDOW))
+    if starts and starts[-1] + WINDOW < n:
+        starts.append(n - WINDOW)
+    return starts
+
+
+def sequence_graph(rg: RigGraph, estimate: Estimate, motion_vae, gauge_sigmas) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]]:
+    """Every SmartMocap term over the rig's states; the values at ``estimate``; the motion windows."""
+    from mocapgraph.priors.motion_factor import MotionVAEPrior
+
+    graph = gtsam.NonlinearFactorGraph()
+    n = len(rg.rig.states)
+    for i in range(n):
+        rg.add_state(graph, i)
+        rg.add_ground(graph, i)
+        if i:
+            rg.add_smoothness(graph, i)
+    rg.add_shape_prior(graph)
+    rg.add_camera_ground(graph)
+    graph.add(_gauge_factor(estimate, gauge_sigmas))
+    values = rg.values(estimate)
+    windows = _motion_windows(n) if motion_vae is not None else []
+    if windows:
+        # SmartMocap's world is the ground plane: the windows' ground is held at z = 0.
+        prior = MotionVAEPrior(motion_vae, rg.body, windows, shape_key=shape_key(), table_cache=rg.cache("body"), ground_sigmas=(1e-4, 1e-4))
+        prior.add_to(graph, values)
+    return graph, values, windows
+
+
+def time_ordering(rg: RigGraph, values: gtsam.Values, windows: list[int]) -> list[int]:
+    """States in time order with each moving camera's frame before its state; a motion window's
+    latent and frame after its last state (eliminated early they would join its 25 states in
+    one clique); then what all states share (shape, static cameras, ground)."""
+    order: list[int] = []
+    seen: set[int] = set()
+    ends: dict[int, list[int]] = {}
+    for w, s in enumerate(windows):
+        ends.setdefault(s + WINDOW - 1, []).extend([motion_frame_key(w), motion_latent_key(w)])
+    for i in range(len(rg.rig.states)):
+        for c in range(rg.rig.num_cameras):
+            if rg.rig.moving[c] and c not in rg.fixed_cameras and rg.rig.frames[c, i] >= 0:
+                key = rg.rig.camera_var(c, i)
+                if key not in seen:
+                    order.append(key)
+                    seen.add(key)
+        order += [root_key(i), pose_key(i)] + ends.get(i, [])
+    listed = set(order)
+    return order + sorted(k for k in values.keys() if k not in listed)
+
+
+# ---------------------------------------------------------------------------------------------
+# Chunks
+
+
+@dataclass
+class ChunkTask:
+    """One chunk, self-contained so that it pickles for a process or a Ray task."""
+
+    rig: Rig
+    start: Estimate
+    options: SmartmocapOptions
+
+
+def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
+    """SmartMocap's three phases on one chunk: cameras alone; cameras and roots; everything
+    but the first state's root. Returns the estimate and the seconds it took."""
+    t0 = time.perf_counter()
+    o = task.options
+    body = load_body_model()
+    vae = _motion_vae(o)
+    rg = RigGraph(task.rig, body, o.graph)
+    n = len(task.rig.states)
+    graph, values, windows = sequence_graph(rg, task.start, vae if n == WINDOW else None, o.gauge_sigmas)
+    body_keys = [root_key(i) for i in range(n)] + [pose_key(i) for i in range(n)] + [shape_key()]
+    phases = [
+        ("cameras", body_keys),
+        ("cameras+roots", [pose_key(i) for i in range(n)] + [shape_key()]),
+        ("all but the first root", [root_key(0)]),
+    ]
+    ordering = time_ordering(rg, values, windows)
+    for _, held in phases:
+        result = solve_staged(hold(graph, values, held), values, rg.stages(o.chunk_iterations, ordering), project=rg.project_shape)
+        values = result.values
+    return rg.read(values, task.start), time.perf_counter() - t0
+
+
+def _motion_vae(options: SmartmocapOptions):
+    if options.motion_prior == "none":
+        return None
+    from mocapgraph.priors.motion_vae import load_default_motion_vae
+
+    return load_default_motion_vae()
+
+
+def chunk_bounds(n: int, size: int) -> list[tuple[int, int]]:
+    """``[start, stop)`` of chunks of ``size`` states, each sharing its first state with the
+    previous chunk's last; a tail shorter than half a chunk joins the last chunk."""
+    bounds = []
+    start = 0
+    while start < n - 1:
+        stop = min(start + size, n)
+        if n - stop < size // 2:
+            stop = n
+        bounds.append((start, stop))
+        start = stop - 1
+    return bounds or [(0, n)]
+
+
+# ---------------------------------------------------------------------------------------------
+# Stitching
+
+
+def _yaw_alignment(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``(4, 4)``: the rotation about Z and translation taking ``source (P, 3)`` onto
+    ``target (P, 3)`` in least squares (both chunks stand on the same ground, z = 0)."""
+    s, t = source - source.mean(0), target - target.mean(0)
+    angle = np.arctan2(np.sum(s[:, 0] * t[:, 1] - s[:, 1] * t[:, 0]), np.sum(s[:, 0] * t[:, 0] + s[:, 1] * t[:, 1]))
+    c, si = np.cos(angle), np.sin(angle)
+    A = np.eye(4)
+    A[:3, :3] = [[c, -si, 0.0], [si, c, 0.0], [0.0, 0.0, 1.0]]
+    A[:3, 3] = target.mean(0) - A[:3, :3] @ source.mean(0)
+    return A
+
+
+def stitch(body: BodyModel, rig: Rig, parts: list[tuple[int, int, Estimate]]) -> Estimate:
+    """One estimate from chunk estimates that share their boundary states.
+
+    Neighbours are merged pairwise, then pairs of pairs (a tree, not a chain). Each merge moves
+    the right block onto the left by the heading and translation that best align their shared
+    state's joints and the static cameras both blocks estimated; the shared state keeps the left
+    block's body, a static camera the chordal mean of both weighted by their states.
+    """
+    static = [c for c in range(rig.num_cameras) if not rig.moving[c]]
+    blocks = list(parts)
+    while len(blocks) > 1:
+        merged = []
+        for p in range(0, len(blocks) - 1, 2):
+            (a0, b0, left), (a1, b1, right) = blocks[p], blocks[p + 1]
+            s = a1 - a0  # the shared state, in the left block's numbering
+            fk = body.forward(left.shape, np.stack([left.roots[s], right.roots[0]]), np.stack([left.poses[s], right.poses[0]]))
+            src, dst = [fk.joints[1]], [fk.joints[0]]
+            for c in static:
+                src.append(right.cameras[c, :1, :3, 3])
+                dst.append(left.cameras[c, :1, :3, 3])
+            moved = right.transformed(_yaw_alignment(np.concatenate(src), np.concatenate(dst)))
+            cams = np.concatenate([left.cameras, moved.cameras[:, 1:]], axis=1)
+            wl, wr = b0 - a0, b1 - a1
+            for c in static:
+                R = rotation_mean(np.stack([left.cameras[c, 0, :3, :3], moved.cameras[c, 0, :3, :3]]), [wl, wr])
+                t = (wl * left.cameras[c, 0, :3, 3] + wr * moved.cameras[c, 0, :3, 3]) / (wl + wr)
+                cams[c, :, :3, :3], cams[c, :, :3, 3] = R, t
+            shape = (wl * left.shape + wr * moved.shape) / (wl + wr)
+            est = Estimate(np.concatenate([left.roots, moved.roots[1:]]), np.concatenate([left.poses, moved.poses[1:]]), shape, cams)
+            merged.append((a0, b1, est))
+        if len(blocks) % 2:
+            merged.append(blocks[-1])
+        blocks = merged
+    return blocks[0][2]
+
+
+# ---------------------------------------------------------------------------------------------
+# The pipeline
+
+
+def _reference_camera(capture: Capture, seen: list[bool]) -> int:
+    """The first static camera that sees the person, else the first camera that does."""
+    for c, cam in enumerate(capture.cameras):
+        if seen[c] and not cam.moving:
+            return c
+    return seen.index(True)
+
+
+def initial_estimate(capture: Capture, rig: Rig, body: BodyModel, options: SmartmocapOptions, notes: list[str]) -> tuple[Estimate, list[bool]]:
+    """Body and cameras in SmartMocap's world from the views; which cameras could be placed."""
+    views, used = view_bodies(rig, body, options.initialiser)
+    notes.append(f"initialised from the {used}")
+    ref_T_c, known = relative_cameras(views, rig.moving, rig.reference)
+    placed = [bool(known[c].any()) for c in range(rig.num_cameras)]
+    fused = fuse_bodies(views, ref_T_c, known)
+    lo, hi = body.shape_bounds.T
+    shape = np.clip(fused.shape[fused.valid].mean(axis=0), lo + 1e-6, hi - 1e-6)
+    ground = ground_frame(body, fused, shape)
+    if not ground.from_feet:
+        notes.append(
+            f"the feet spread only {ground.foot_spread_m:.2f} m (std): the ground's tilt was first taken from the body's mean up "
+            "direction and rests on the motion prior and the weak gauge prior (its covariance says how well)"
+        )
+    world_T_ref = np.linalg.inv(ground.ref_T_world)
+    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, world_T_ref @ ref_T_c), placed
+
+
+def _degeneracy_notes(rig: Rig, placed: list[bool]) -> list[str]:
+    notes = ["absolute scale: from the body model's size (shape prior) alone; the shape's covariance carries it"]
+    used = [c for c in range(rig.num_cameras) if placed[c]]
+    if len(used) == 1:
+        notes.append("a single camera: depth along its rays rests on the body's size and the priors; expect large covariances along them")
+    if all(rig.moving[c] for c in used):
+        notes.append("no static camera: the split between the person's motion and the cameras' rests on the motion prior and smoothness")
+    return notes
+
+
+def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, capture_label: str = "") -> Result:
+    """Run the pipeline on a loaded capture and return the result (nothing written)."""
+    from mocapgraph.pipelines.executors import make_executor
+
+    options = options or SmartmocapOptions()
+    options.check()
+    t_start = time.perf_counter()
+    body = load_body_model()
+    notes = list(capture.notes)
+    seen = [bool(cam.detectors) and any(np.isfinite(d.keypoints[..., 2]).any() for d in cam.detectors.values()) for cam in capture.cameras]
+    if not any(seen):
+        raise MocapgraphError(f"capture {capture.name!r}: no camera has detections")
+    rig = rig_from_capture(capture, options.detectors, reference=_reference_camera(capture, seen))
+    say = lambda m: log("smartmocap", options.progress, m)  # noqa: E731
+    start, placed = initial_estimate(capture, rig, body, options, notes)
+    for c, name in enumerate(rig.names):
+        if not placed[c]:
+            notes.append(f"camera {name}: never saw the person together with the reference camera {rig.names[rig.reference]}; not estimated")
+    rig = _without(rig, placed)
+    notes += _degeneracy_notes(rig, placed)
+    for note in notes:
+        say(note)
+    n = len(rig.states)
+    bounds = chunk_bounds(n, options.chunk_size)
+    say(f"{n} body states, {len(bounds)} chunks of <= {options.chunk_size}, executor {options.executor} ({options.workers} workers)")
+    tasks = [ChunkTask(rig.subset(a, b), start.subset(a, b), options) for a, b in bounds]
+    with make_executor(options.executor, options.workers, options.address) as executor:
+        solved = executor.map(solve_chunk, tasks, progress="smartmocap chunks" if options.progress else None)
+    chunk_seconds = [s for _, s in solved]
+    stitched = stitch(body, rig, [(a, b, est) for (a, b), (est, _) in zip(bounds, solved)])
+    say(f"chunks: {np.median(chunk_seconds):.2f} s median; stitched; final optimisation")
+
+    rg = RigGraph(rig, body, options.graph)
+    graph, values, windows = sequence_graph(rg, stitched, _motion_vae(options), options.gauge_sigmas)
+    on_iteration = (lambda row: say(f"final {row.get('stage')} iteration {row.get('iteration')}: cost {row.get('cost_after', row.get('cost', 0.0)):.4g}")) if options.progress else None
+    solved_final = solve_staged(
+        graph, values, rg.stages(options.final_iterations, time_ordering(rg, values, windows)), project=rg.project_shape, on_iteration=on_iteration
+    )  # fmt: skip
+    estimate = rg.read(solved_final.values, stitched)
+    seconds = time.perf_counter() - t_start
+    result = _result(capture, rig, body, estimate, options, capture_label, placed)
+    result.log = list(solved_final.log)
+    if options.covariances:
+        _add_covariances(result, rig, rg, graph, solved_final.values, estimate, placed)
+    result.parameters.update(
+        seconds=round(seconds, 3), seconds_per_chunk=round(float(np.mean(chunk_seconds)), 3), chunks=len(bounds), notes=notes
+    )
+    return result
+
+
+def _without(rig: Rig, placed: list[bool]) -> Rig:
+    """The rig without the observations of cameras that could not be placed."""
+    states = [[o for o in obs if placed[o.camera]] for obs in rig.states]
+    frames = np.where(np.array(placed)[:, None], rig.frames, -1)
+    return Rig(rig.names, rig.moving, rig.intrinsics, rig.times, frames, states, rig.reference)
+
+
+def _result(capture, rig: Rig, body: BodyModel, estimate: Estimate, options, capture_label: str, placed) -> Result:
+    fmt = next(o.fmt for obs in rig.states for o in obs)
+    fk = body.forward(estimate.shape, estimate.roots, estimate.poses)
+    detections = np.array([int(sum((o.weights > 0).sum() for o in obs)) for obs in rig.states])
+    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None}
+    result = Result(
+        pipeline="smartmocap", capture=capture_label or str(capture.path or capture.name), world_frame="ground_plane",
+        timestamps=rig.times, joints=fk.joints, body_model=body.name, root=estimate.roots, pose=estimate.poses,
+        shape=estimate.shape, keypoints=body.forward(estimate.shape, estimate.roots, estimate.poses, keypoints=fmt).keypoints,
+        keypoint_format=fmt, flags={"num_detections": detections, "unconstrained": detections == 0}, parameters=params,
+    )  # fmt: skip
+    for c, cam in enumerate(capture.cameras):
+        frames = rig.frames[c]
+        have = frames >= 0
+        if placed[c] and have.any():
+            result.cameras[cam.name] = CameraTrack(cam.timestamps[frames[have]], estimate.cameras[c, have])
+    return result
+
+
+def _add_covariances(result: Result, rig: Rig, rg: RigGraph, graph, values, estimate: Estimate, placed) -> None:
+    """Joints, root and every camera's pose covariance from the final graph's marginals."""
+    marginals = gtsam.Marginals(graph.linearize(values), values)
+    result.covariances["joints"], result.covariances["root"] = joint_covariances(
+        rg.body, marginals, estimate.roots, estimate.poses, estimate.shape
+    )
+    result.covariances["shape"] = np.asarray(marginals.marginalCovariance(shape_key()))
+    for c, name in enumerate(rig.names):
+        have = rig.frames[c] >= 0
+        if not (placed[c] and have.any()):
+            continue
+        cov = {}
+        result.covariances[f"camera:{name}"] = np.stack(
+            [cov.setdefault(k, marginals.marginalCovariance(k)) for k in (rig.camera_var(c, i) for i in np.flatnonzero(have))]
+        )
+
+
+def run_smartmocap_command(capture_path: Path, out: Path, options: SmartmocapOptions, overwrite: bool = False) -> Result:
+    """``mocapgraph run smartmocap``: load, run, write, and print a short summary."""
+    capture = load_capture(capture_path)
+    result = run_smartmocap(capture, options, capture_label=str(capture_path))
+    write_result(result, out, overwrite=overwrite)
+    p = result.parameters
+    print(
+        f"smartmocap: {len(result.timestamps)} body states, {len(result.cameras)} cameras, {p['chunks']} chunks "
+        f"({p['seconds_per_chunk']:.2f} s each) in {p['seconds']:.1f} s; world: ground plane"
+    )
+    for note in p["notes"]:
+        print(f"  note: {note}")
+    return result
+
+
