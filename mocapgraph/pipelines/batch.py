@@ -22,13 +22,22 @@ from mocapgraph.errors import MocapgraphError
 from mocapgraph.pipelines.executors import EXECUTORS, TaskError, make_executor
 
 
+@contextlib.contextmanager
+def _silenced():
+    """Swallow what a pipeline prints: summaries and notes of several captures at once would
+    interleave on the terminal, and the batch prints one line per capture instead."""
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        yield
+
+
 def aircap(capture_path: Path, out: Path, overwrite: bool):
     """AirCap with its default options; one process (the batch's tasks are the parallelism)."""
     from mocapgraph.data_tools.capture import load_capture
     from mocapgraph.data_tools.result import write_result
     from mocapgraph.pipelines.aircap import AircapOptions, run_aircap
 
-    result = run_aircap(load_capture(capture_path), AircapOptions(progress=False, workers=1), capture_label=str(capture_path))
+    with _silenced():
+        result = run_aircap(load_capture(capture_path), AircapOptions(progress=False, workers=1), capture_label=str(capture_path))
     write_result(result, out, overwrite=overwrite)
     return result
 
@@ -37,8 +46,7 @@ def baseline(capture_path: Path, out: Path, overwrite: bool):
     """Calibrated-camera triangulation with its default options."""
     from mocapgraph.pipelines.baseline import run_baseline
 
-    # run_baseline prints a summary; in a batch the per-capture line replaces it.
-    with contextlib.redirect_stdout(io.StringIO()):
+    with _silenced():
         return run_baseline(capture_path, out, overwrite=overwrite)
 
 

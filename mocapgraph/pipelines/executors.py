@@ -58,8 +58,9 @@ class Executor:
     def map(self, fn: Callable, items: list, progress: str | None = None) -> list:
         """``[fn(item) for item in items]``, computed as one task per item.
 
-        ``fn`` must be a module-level function (it is pickled by reference), and the items and
-        results picklable. Every task runs to the end even when some fail; then, if any failed,
+        ``fn`` must be picklable: a module-level function (pickled by reference, so the workers
+        must be able to import its module), a builtin, or a ``functools.partial`` of those; the
+        items and results must be picklable too. Every task runs to the end even when some fail; then, if any failed,
         a :class:`TaskError` names the first failed task's index and message and carries every
         result. With ``progress`` set, prints ``"<progress>: k/n done"`` to stderr as tasks end.
         """
@@ -129,6 +130,10 @@ class LocalExecutor(Executor):
             self._pool = None
 
 
+def _apply(fn: Callable, item):
+    return fn(item)
+
+
 class RayExecutor(Executor):
     """Tasks on Ray: a cluster at ``address``, the instance this process already joined, or a
     local instance of ``workers`` CPUs started here (and shut down by :meth:`close`)."""
@@ -159,8 +164,10 @@ class RayExecutor(Executor):
 
     def _run(self, fn, items):
         ray = self._ray
-        remote = ray.remote(fn)
-        pending = {remote.remote(item): i for i, item in enumerate(items)}
+        # One trampoline rather than ray.remote(fn): it also takes builtins and functools.partial,
+        # and the function is shipped to the object store once, not with every task.
+        apply, fn_ref = ray.remote(_apply), ray.put(fn)
+        pending = {apply.remote(fn_ref, item): i for i, item in enumerate(items)}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             for ref in ready:
