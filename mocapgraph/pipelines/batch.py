@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Callable
 
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.pipelines.executors import EXECUTORS, TaskError, make_executor
+from mocapgraph.pipelines.executors import EXECUTORS, TaskError, describe_exception, make_executor
 
 
 @contextlib.contextmanager
@@ -73,8 +73,7 @@ def _run_one(job: tuple[Callable, str, str, bool]) -> Outcome:
     try:
         result = run(Path(capture), Path(out), overwrite)
     except Exception as exc:  # a failed capture is reported, not raised: the others go on
-        message = str(exc) if isinstance(exc, MocapgraphError) else f"{type(exc).__name__}: {exc}"
-        return Outcome(Path(capture).name, False, message, time.perf_counter() - start)
+        return Outcome(Path(capture).name, False, describe_exception(exc), time.perf_counter() - start)
     return Outcome(Path(capture).name, True, "", time.perf_counter() - start, len(result.timestamps))
 
 

@@ -35,7 +35,8 @@ class TaskError(MocapgraphError):
         return TaskError, (str(self), self.results, self.failures)
 
 
-def _describe(exc: BaseException) -> str:
+def describe_exception(exc: BaseException) -> str:
+    """The message for the user: a MocapgraphError's own words, anything else with its type."""
     if isinstance(exc, MocapgraphError):
         return str(exc)
     return f"{type(exc).__name__}: {exc}"
@@ -44,7 +45,6 @@ def _describe(exc: BaseException) -> str:
 class Executor:
     """Runs ``fn(item)`` for every item, as separate tasks; use it as a context manager."""
 
-    kind = ""
 
     def __enter__(self) -> Executor:
         return self
@@ -60,9 +60,9 @@ class Executor:
 
         ``fn`` must be picklable: a module-level function (pickled by reference, so the workers
         must be able to import its module), a builtin, or a ``functools.partial`` of those; the
-        items and results must be picklable too. Every task runs to the end even when some fail; then, if any failed,
-        a :class:`TaskError` names the first failed task's index and message and carries every
-        result. With ``progress`` set, prints ``"<progress>: k/n done"`` to stderr as tasks end.
+        items and results must be picklable too. Every task runs to the end even when some
+        fail; then, if any failed, a :class:`TaskError` names the first failed task's index and
+        message and carries every result. With ``progress`` set, prints ``"<progress>: k/n done"`` to stderr as tasks end.
         """
         items = list(items)
         results: list = [None] * len(items)
@@ -72,7 +72,7 @@ class Executor:
             if ok:
                 results[i] = value
             else:
-                failures[i], causes[i] = _describe(value), value
+                failures[i], causes[i] = describe_exception(value), value
             if progress:
                 print(f"{progress}: {done}/{len(items)} done", file=sys.stderr, flush=True)
         if failures:
@@ -95,7 +95,6 @@ class LocalExecutor(Executor):
     module-level state (body tables, gtsam objects) instead of importing and pickling them again.
     """
 
-    kind = "local"
 
     def __init__(self, workers: int):
         self.workers = workers
@@ -138,7 +137,6 @@ class RayExecutor(Executor):
     """Tasks on Ray: a cluster at ``address``, the instance this process already joined, or a
     local instance of ``workers`` CPUs started here (and shut down by :meth:`close`)."""
 
-    kind = "ray"
 
     def __init__(self, workers: int, address: str | None):
         try:
@@ -160,7 +158,7 @@ class RayExecutor(Executor):
                 ray.init(address=address, **quiet)
         except Exception as exc:
             where = f"the Ray cluster at {address}" if address else "a local Ray instance"
-            raise MocapgraphError(f"could not start or join {where}: {_describe(exc)}") from exc
+            raise MocapgraphError(f"could not start or join {where}: {describe_exception(exc)}") from exc
 
     def _run(self, fn, items):
         ray = self._ray
