@@ -3,7 +3,7 @@ metric's definition calls for (``docs/metrics.md``), reported by name."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -11,7 +11,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.data_tools import metrics as M
 from mocapgraph.data_tools.alignment import Similarity, procrustes_trajectory, umeyama
 from mocapgraph.data_tools.capture import Capture
-from mocapgraph.data_tools.result import Result
+from mocapgraph.data_tools.result import CameraTrack, Result
 from mocapgraph.data_tools.timing import match_times
 from mocapgraph.errors import MocapgraphError
 
@@ -54,11 +54,47 @@ def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_join
     return fit, f"similarity (Umeyama with scale over all joints; scale {fit.scale:.3f})"
 
 
+PER_FRAME_CAMERA = "camera_per_frame:"
+
+
+def in_capture_frame(result: Result, capture: Capture) -> Result:
+    """A result whose world is a camera's frame at every instant (``camera_per_frame:<name>``,
+    AirPose's), moved into the capture's world by that camera's true pose at each body
+    timestamp; the cameras' tracks by the pose at their own frames. Anything else is returned as is.
+    """
+    if not result.world_frame.startswith(PER_FRAME_CAMERA):
+        return result
+    name = result.world_frame[len(PER_FRAME_CAMERA) :]
+    truth = capture.ground_truth.cameras.get(name)
+    if truth is None:
+        raise MocapgraphError(f"result world frame {result.world_frame!r}: the capture has no ground-truth poses for camera {name!r}")
+    stamps = capture.camera(name).timestamps
+
+    def pose_at(times: np.ndarray) -> np.ndarray:
+        # The reference camera's frame at each time: its frame nearest in time (the states are its frames).
+        idx = np.clip(np.searchsorted(stamps, times), 1, len(stamps) - 1)
+        idx -= (times - stamps[idx - 1]) < (stamps[idx] - times)
+        return truth[idx]
+
+    T = pose_at(result.timestamps)
+    moved = replace(result, world_frame="capture", cameras=dict(result.cameras))
+    moved.joints = np.einsum("tij,tkj->tki", T[:, :3, :3], result.joints) + T[:, None, :3, 3]
+    if result.keypoints is not None:
+        moved.keypoints = np.einsum("tij,tkj->tki", T[:, :3, :3], result.keypoints) + T[:, None, :3, 3]
+    if result.root is not None:
+        moved.root = T @ result.root
+    for cam_name, track in result.cameras.items():
+        moved.cameras[cam_name] = CameraTrack(track.timestamps, pose_at(track.timestamps) @ track.world_T_camera)
+    return moved
+
+
 def evaluate(result: Result, capture: Capture) -> Evaluation:
     """All metrics that the result's contents allow, against the capture's ground truth."""
     gt = capture.ground_truth
     if gt is None:
         raise MocapgraphError(f"capture {capture.name!r} has no ground truth to evaluate against")
+    per_frame_alignment = result.world_frame.startswith(PER_FRAME_CAMERA)
+    result = in_capture_frame(result, capture)
     step = np.median(np.diff(gt.timestamps)) if len(gt.timestamps) > 1 else 1.0
     idx = match_times(gt.timestamps, result.timestamps, tolerance=0.5 * step)
     have = idx >= 0
@@ -67,6 +103,8 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
     sel = idx[have]
     ref_joints = gt.joints[sel]
     align, how = _alignment(result, capture, ref_joints, result.joints[have])
+    if per_frame_alignment:
+        how = "rigid per frame: the reference camera's true pose at each body timestamp"
     est_joints = align.apply(result.joints[have])
     out: dict[str, float] = {}
     per_frame: dict[str, np.ndarray] = {"timestamps": result.timestamps[have]}

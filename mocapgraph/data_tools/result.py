@@ -58,7 +58,9 @@ class Result:
         pipeline: e.g. ``"aircap"``, ``"baseline"``.
         capture: path of the capture it came from (as given to the pipeline).
         world_frame: ``"capture"`` (the capture's own world frame), ``"camera:<name>"`` (that
-            camera's frame at its first timestamp), or ``"ground_plane"`` (SmartMocap's frame).
+            camera's frame at its first timestamp), ``"camera_per_frame:<name>"`` (that camera's
+            frame at each body timestamp: AirPose's, where everything is relative to camera 1), or
+            ``"ground_plane"`` (SmartMocap's frame).
         timestamps: ``(T,)`` seconds of the body states.
         joints: ``(T, 22, 3)`` world metres; NaN where a frame was not estimated.
         body_model, root ``(T, 4, 4)``, pose ``(T, 21, 3)``, shape ``(S,)``: the body parameters,

@@ -31,13 +31,25 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
 from mocapgraph.data_tools.capture import Capture, load_capture
-from mocapgraph.data_tools.result import CameraTrack, Result, write_result
+from mocapgraph.data_tools.result import Result, write_result
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.initialisation import fuse_bodies, ground_frame, relative_cameras, rotation_mean
-from mocapgraph.graphs.keys import motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
+from mocapgraph.graphs.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import solve_staged
-from mocapgraph.graphs.uncertainty import joint_covariances
-from mocapgraph.pipelines.uncalibrated import Estimate, GraphOptions, Rig, RigGraph, hold, log, rig_from_capture, view_bodies
+from mocapgraph.pipelines.uncalibrated import (
+    Estimate,
+    GraphOptions,
+    Rig,
+    RigGraph,
+    add_covariances,
+    held_shape,
+    hold,
+    log,
+    rig_from_capture,
+    rig_result,
+    time_ordering,
+    view_bodies,
+)
 from mocapgraph.priors.motion_windows import WINDOW
 
 INITIALISERS = ("auto", "regressor", "pnp")
@@ -122,27 +134,6 @@ def sequence_graph(rg: RigGraph, estimate: Estimate, motion_vae, gauge_sigmas) -
     return graph, values, windows
 
 
-def time_ordering(rg: RigGraph, values: gtsam.Values, windows: list[int]) -> list[int]:
-    """States in time order with each moving camera's frame before its state; a motion window's
-    latent and frame after its last state (eliminated early they would join its 25 states in
-    one clique); then what all states share (shape, static cameras, ground)."""
-    order: list[int] = []
-    seen: set[int] = set()
-    ends: dict[int, list[int]] = {}
-    for w, s in enumerate(windows):
-        ends.setdefault(s + WINDOW - 1, []).extend([motion_frame_key(w), motion_latent_key(w)])
-    for i in range(len(rg.rig.states)):
-        for c in range(rg.rig.num_cameras):
-            if rg.rig.moving[c] and c not in rg.fixed_cameras and rg.rig.frames[c, i] >= 0:
-                key = rg.rig.camera_var(c, i)
-                if key not in seen:
-                    order.append(key)
-                    seen.add(key)
-        order += [root_key(i), pose_key(i)] + ends.get(i, [])
-    listed = set(order)
-    return order + sorted(k for k in values.keys() if k not in listed)
-
-
 # ---------------------------------------------------------------------------------------------
 # Chunks
 
@@ -159,6 +150,10 @@ class ChunkTask:
 def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
     """SmartMocap's three phases on one chunk: cameras alone; cameras and roots; everything
     but the first state's root. Returns the estimate and the seconds it took."""
+    import torch
+
+    # Chunks run side by side, one per core: a second torch thread each would only contend.
+    torch.set_num_threads(1)
     t0 = time.perf_counter()
     o = task.options
     body = load_body_model()
@@ -170,7 +165,7 @@ def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
     phases = [
         ("cameras", body_keys),
         ("cameras+roots", [pose_key(i) for i in range(n)] + [shape_key()]),
-        ("all but the first root", [root_key(0)]),
+        ("all but the first root", [root_key(0)] + held_shape(o.graph)),
     ]
     ordering = time_ordering(rg, values, windows)
     for _, held in phases:
@@ -330,14 +325,15 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     graph, values, windows = sequence_graph(rg, stitched, _motion_vae(options), options.gauge_sigmas)
     on_iteration = (lambda row: say(f"final {row.get('stage')} iteration {row.get('iteration')}: cost {row.get('cost_after', row.get('cost', 0.0)):.4g}")) if options.progress else None
     solved_final = solve_staged(
-        graph, values, rg.stages(options.final_iterations, time_ordering(rg, values, windows)), project=rg.project_shape, on_iteration=on_iteration
+        hold(graph, values, held_shape(options.graph)), values, rg.stages(options.final_iterations, time_ordering(rg, values, windows)), project=rg.project_shape, on_iteration=on_iteration
     )  # fmt: skip
     estimate = rg.read(solved_final.values, stitched)
     seconds = time.perf_counter() - t_start
-    result = _result(capture, rig, body, estimate, options, capture_label, placed)
+    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None}
+    result = rig_result("smartmocap", capture, rig, body, estimate, "ground_plane", params, capture_label, placed)
     result.log = list(solved_final.log)
     if options.covariances:
-        _add_covariances(result, rig, rg, graph, solved_final.values, estimate, placed)
+        add_covariances(result, rg, graph, solved_final.values, estimate)
     result.parameters.update(
         seconds=round(seconds, 3), seconds_per_chunk=round(float(np.mean(chunk_seconds)), 3), chunks=len(bounds), notes=notes
     )
@@ -349,42 +345,6 @@ def _without(rig: Rig, placed: list[bool]) -> Rig:
     states = [[o for o in obs if placed[o.camera]] for obs in rig.states]
     frames = np.where(np.array(placed)[:, None], rig.frames, -1)
     return Rig(rig.names, rig.moving, rig.intrinsics, rig.times, frames, states, rig.reference)
-
-
-def _result(capture, rig: Rig, body: BodyModel, estimate: Estimate, options, capture_label: str, placed) -> Result:
-    fmt = next(o.fmt for obs in rig.states for o in obs)
-    fk = body.forward(estimate.shape, estimate.roots, estimate.poses)
-    detections = np.array([int(sum((o.weights > 0).sum() for o in obs)) for obs in rig.states])
-    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None}
-    result = Result(
-        pipeline="smartmocap", capture=capture_label or str(capture.path or capture.name), world_frame="ground_plane",
-        timestamps=rig.times, joints=fk.joints, body_model=body.name, root=estimate.roots, pose=estimate.poses,
-        shape=estimate.shape, keypoints=body.forward(estimate.shape, estimate.roots, estimate.poses, keypoints=fmt).keypoints,
-        keypoint_format=fmt, flags={"num_detections": detections, "unconstrained": detections == 0}, parameters=params,
-    )  # fmt: skip
-    for c, cam in enumerate(capture.cameras):
-        frames = rig.frames[c]
-        have = frames >= 0
-        if placed[c] and have.any():
-            result.cameras[cam.name] = CameraTrack(cam.timestamps[frames[have]], estimate.cameras[c, have])
-    return result
-
-
-def _add_covariances(result: Result, rig: Rig, rg: RigGraph, graph, values, estimate: Estimate, placed) -> None:
-    """Joints, root and every camera's pose covariance from the final graph's marginals."""
-    marginals = gtsam.Marginals(graph.linearize(values), values)
-    result.covariances["joints"], result.covariances["root"] = joint_covariances(
-        rg.body, marginals, estimate.roots, estimate.poses, estimate.shape
-    )
-    result.covariances["shape"] = np.asarray(marginals.marginalCovariance(shape_key()))
-    for c, name in enumerate(rig.names):
-        have = rig.frames[c] >= 0
-        if not (placed[c] and have.any()):
-            continue
-        cov = {}
-        result.covariances[f"camera:{name}"] = np.stack(
-            [cov.setdefault(k, marginals.marginalCovariance(k)) for k in (rig.camera_var(c, i) for i in np.flatnonzero(have))]
-        )
 
 
 def run_smartmocap_command(capture_path: Path, out: Path, options: SmartmocapOptions, overwrite: bool = False) -> Result:

@@ -22,6 +22,7 @@ import numpy as np
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.data_tools.capture import Capture
+from mocapgraph.data_tools.result import CameraTrack, Result
 from mocapgraph.data_tools.triangulation import undistort_pixels
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
@@ -37,8 +38,10 @@ from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import frame_groups
 from mocapgraph.graphs.initialisation import ViewBodies, pnp_view
-from mocapgraph.graphs.keys import camera_key, pose_key, root_key, shape_key
+from mocapgraph.graphs.keys import camera_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions
+from mocapgraph.graphs.uncertainty import joint_covariances
+from mocapgraph.priors.motion_windows import WINDOW
 
 HOLD_SIGMA = 1e-5
 """σ (rad, m) of the priors that hold a variable at its value during a phase of a solve."""
@@ -200,7 +203,12 @@ class GraphOptions:
     noise_px: float = 3.0
     gm_sigma_px: float = 40.0
     pose_prior_sigma_rad: float = 0.8
-    shape_prior_sigma: float = 0.25
+    shape_prior_sigma: float = 0.1
+    # Without calibration the body's size is the only scale, and every smoothness term (m/s) is
+    # cheaper in a smaller scene: estimated, the shape shrank a 10 m airpose scene to 6.5 m
+    # (a child's size, 3σ off the shape prior; measured). "hold" keeps the initial shape during
+    # the solve; the covariances are still those of the graph with the shape free under its prior.
+    shape: str = "hold"
     root_sigma_rad_s: float = 4.0
     root_sigma_m_s: float = 3.0
     pose_sigma_rad_s: float = 6.0
@@ -332,6 +340,16 @@ class RigGraph:
         ]
 
 
+SHAPE_MODES = ("hold", "estimate")
+
+
+def held_shape(options: GraphOptions) -> list[int]:
+    """The shape's key when ``options.shape`` holds it, else nothing."""
+    if options.shape not in SHAPE_MODES:
+        raise MocapgraphError(f"shape {options.shape!r}: choose one of {', '.join(SHAPE_MODES)}")
+    return [shape_key()] if options.shape == "hold" else []
+
+
 def hold(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys) -> gtsam.NonlinearFactorGraph:
     """A copy of ``graph`` with every key of ``keys`` held at its value by a stiff prior."""
     held = gtsam.NonlinearFactorGraph(graph)
@@ -351,3 +369,65 @@ def hold(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys) -> gtsam
 def log(pipeline: str, progress: bool, message: str) -> None:
     if progress:
         print(f"{pipeline}: {message}", file=sys.stderr, flush=True)
+
+
+def time_ordering(rg: RigGraph, values: gtsam.Values, windows: list[int] = ()) -> list[int]:
+    """Elimination order: states in time order with each moving camera's frame before its
+    state; a motion window's latent and frame after its last state (eliminated early they would
+    join its 25 states in one clique); then what all states share (shape, static cameras, ground)."""
+    order: list[int] = []
+    seen: set[int] = set()
+    ends: dict[int, list[int]] = {}
+    for w, s in enumerate(windows):
+        ends.setdefault(s + WINDOW - 1, []).extend([motion_frame_key(w), motion_latent_key(w)])
+    for i in range(len(rg.rig.states)):
+        for c in range(rg.rig.num_cameras):
+            if rg.rig.moving[c] and c not in rg.fixed_cameras and rg.rig.frames[c, i] >= 0:
+                key = rg.rig.camera_var(c, i)
+                if key not in seen:
+                    order.append(key)
+                    seen.add(key)
+        order += [root_key(i), pose_key(i)] + ends.get(i, [])
+    listed = set(order)
+    return order + sorted(k for k in values.keys() if k not in listed)
+
+
+def rig_result(
+    pipeline: str, capture: Capture, rig: Rig, body: BodyModel, estimate: Estimate, world_frame: str, parameters: dict,
+    capture_label: str = "", placed: list[bool] | None = None,
+) -> Result:  # fmt: skip
+    """The result of a rig's solve: body states, every placed camera's track (its frames at the
+    states), per-state detection counts."""
+    placed = placed or [True] * rig.num_cameras
+    fmt = next(o.fmt for obs in rig.states for o in obs)
+    fk = body.forward(estimate.shape, estimate.roots, estimate.poses)
+    detections = np.array([int(sum((o.weights > 0).sum() for o in obs)) for obs in rig.states])
+    result = Result(
+        pipeline=pipeline, capture=capture_label or str(capture.path or capture.name), world_frame=world_frame,
+        timestamps=rig.times, joints=fk.joints, body_model=body.name, root=estimate.roots, pose=estimate.poses,
+        shape=estimate.shape, keypoints=body.forward(estimate.shape, estimate.roots, estimate.poses, keypoints=fmt).keypoints,
+        keypoint_format=fmt, flags={"num_detections": detections, "unconstrained": detections == 0}, parameters=parameters,
+    )  # fmt: skip
+    for c, cam in enumerate(capture.cameras):
+        frames = rig.frames[c]
+        have = frames >= 0
+        if placed[c] and have.any():
+            result.cameras[cam.name] = CameraTrack(cam.timestamps[frames[have]], estimate.cameras[c, have])
+    return result
+
+
+def add_covariances(result: Result, rg: RigGraph, graph, values, estimate: Estimate) -> None:
+    """Joints, root, shape and every estimated camera's pose covariance, from the graph's marginals."""
+    marginals = gtsam.Marginals(graph.linearize(values), values)
+    result.covariances["joints"], result.covariances["root"] = joint_covariances(
+        rg.body, marginals, estimate.roots, estimate.poses, estimate.shape
+    )
+    result.covariances["shape"] = np.asarray(marginals.marginalCovariance(shape_key()))
+    rig = rg.rig
+    for c, name in enumerate(rig.names):
+        have = np.flatnonzero(rig.frames[c] >= 0)
+        if name not in result.cameras or c in rg.fixed_cameras:
+            continue
+        cache: dict[int, np.ndarray] = {}
+        keys = [rig.camera_var(c, i) for i in have]
+        result.covariances[f"camera:{name}"] = np.stack([cache[k] if k in cache else cache.setdefault(k, marginals.marginalCovariance(k)) for k in keys])
