@@ -50,9 +50,35 @@ def baseline(capture_path: Path, out: Path, overwrite: bool):
         return run_baseline(capture_path, out, overwrite=overwrite)
 
 
+def airpose(capture_path: Path, out: Path, overwrite: bool):
+    """AirPose+ with its default options."""
+    from mocapgraph.data_tools.capture import load_capture
+    from mocapgraph.data_tools.result import write_result
+    from mocapgraph.pipelines.airpose import AirposeOptions, run_airpose
+
+    with _silenced():
+        result = run_airpose(load_capture(capture_path), AirposeOptions(progress=False), capture_label=str(capture_path))
+    write_result(result, out, overwrite=overwrite)
+    return result
+
+
+def smartmocap(capture_path: Path, out: Path, overwrite: bool):
+    """SmartMocap with its default options; its chunks in this task's process (one worker)."""
+    from mocapgraph.data_tools.capture import load_capture
+    from mocapgraph.data_tools.result import write_result
+    from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
+
+    with _silenced():
+        result = run_smartmocap(load_capture(capture_path), SmartmocapOptions(progress=False, workers=1), capture_label=str(capture_path))
+    write_result(result, out, overwrite=overwrite)
+    return result
+
+
 PIPELINES: dict[str, Callable] = {
     "aircap": aircap,
+    "airpose": airpose,
     "baseline": baseline,
+    "smartmocap": smartmocap,
 }
 
 
