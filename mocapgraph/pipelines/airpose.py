@@ -30,7 +30,6 @@ from mocapgraph.data_tools.evaluation import PER_FRAME_CAMERA
 from mocapgraph.data_tools.result import Result, write_result
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.initialisation import fuse_bodies, relative_cameras
-from mocapgraph.graphs.keys import pose_key
 from mocapgraph.graphs.solver import solve_staged
 from mocapgraph.pipelines.uncalibrated import (
     Estimate,
@@ -48,7 +47,6 @@ from mocapgraph.pipelines.uncalibrated import (
 )
 
 INITIALISERS = ("auto", "regressor", "pnp")
-POSE_PRIORS = ("none", "gmm")
 
 
 @dataclass
@@ -58,7 +56,6 @@ class AirposeOptions:
     initialiser: str = "auto"
     refine: bool = True  # AirPose+ (False: the initialiser's estimate alone)
     min_confidence: float = 3.0  # summed keypoint confidence over the views a frame needs
-    pose_prior: str = "none"
     iterations: int = 30
     detectors: tuple[str, ...] | None = None
     covariances: bool = True
@@ -68,8 +65,6 @@ class AirposeOptions:
     def check(self) -> None:
         if self.initialiser not in INITIALISERS:
             raise MocapgraphError(f"initialiser {self.initialiser!r}: choose one of {', '.join(INITIALISERS)}")
-        if self.pose_prior not in POSE_PRIORS:
-            raise MocapgraphError(f"pose_prior {self.pose_prior!r}: choose one of {', '.join(POSE_PRIORS)}")
         if not (np.isfinite(self.min_confidence) and self.min_confidence >= 0):
             raise MocapgraphError(f"min_confidence: a finite number >= 0, got {self.min_confidence!r}")
 
@@ -125,13 +120,8 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     log_rows: list[dict] = []
     if options.refine:
         graph = gtsam.NonlinearFactorGraph()
-        gmm = _pose_gmm(options)
         for i in range(n):
             rg.add_state(graph, i)
-            if gmm is not None:
-                from mocapgraph.priors import pose_gmm_factor
-
-                graph.add(pose_gmm_factor(pose_key(i), gmm))
             if i:
                 rg.add_smoothness(graph, i)
         rg.add_shape_prior(graph)
@@ -151,14 +141,6 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     result = _with_left_out(result, full.times, keep)
     result.parameters.update(seconds=round(seconds, 3), frames_per_second=round(n / max(seconds, 1e-9), 2), notes=notes)
     return result
-
-
-def _pose_gmm(options: AirposeOptions):
-    if options.pose_prior != "gmm":
-        return None
-    from mocapgraph.priors import load_default_pose_gmm
-
-    return load_default_pose_gmm()
 
 
 def _with_left_out(result: Result, times: np.ndarray, keep: np.ndarray) -> Result:

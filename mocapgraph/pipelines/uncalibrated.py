@@ -41,8 +41,10 @@ from mocapgraph.graphs.initialisation import ViewBodies, pnp_view
 from mocapgraph.graphs.keys import camera_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions
 from mocapgraph.graphs.uncertainty import joint_covariances
+from mocapgraph.priors import load_default_pose_gmm, pose_gmm_factor
 from mocapgraph.priors.motion_windows import WINDOW
 
+POSE_PRIORS = ("gmm", "none")
 HOLD_SIGMA = 1e-5
 """σ (rad, m) of the priors that hold a variable at its value during a phase of a solve."""
 
@@ -209,6 +211,9 @@ class GraphOptions:
     # (a child's size, 3σ off the shape prior; measured). "hold" keeps the initial shape during
     # the solve; the covariances are still those of the graph with the shape free under its prior.
     shape: str = "hold"
+    # SmartMocap's and AirPose+'s pose prior: the pelvis's pitch is nearly invisible in keypoints
+    # (the hip points lie on its pitch axis), and without a prior the spine and legs make up for it.
+    pose_prior: str = "gmm"
     root_sigma_rad_s: float = 4.0
     root_sigma_m_s: float = 3.0
     pose_sigma_rad_s: float = 6.0
@@ -229,6 +234,11 @@ class RigGraph:
     fixed_cameras: dict[int, np.ndarray] = field(default_factory=dict)  # camera -> (N, 4, 4) held poses (AirPose's reference)
     scale: RobustScale = field(default_factory=lambda: RobustScale(np.inf))
     caches: dict[str, ShapeTableCache] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.options.pose_prior not in POSE_PRIORS:
+            raise MocapgraphError(f"pose_prior {self.options.pose_prior!r}: choose one of {', '.join(POSE_PRIORS)}")
+        self.pose_gmm = load_default_pose_gmm() if self.options.pose_prior == "gmm" else None
 
     def cache(self, fmt: str) -> ShapeTableCache:
         if fmt not in self.caches:
@@ -254,6 +264,8 @@ class RigGraph:
                 )  # fmt: skip
             )
         graph.add(pose_regularizer_factor(pose_key(i), self.options.pose_prior_sigma_rad))
+        if self.pose_gmm is not None:
+            graph.add(pose_gmm_factor(pose_key(i), self.pose_gmm))
 
     def add_smoothness(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
         """Between states ``i - 1`` and ``i``: root, joint-rotation and 3D joint smoothness, and

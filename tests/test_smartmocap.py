@@ -1,0 +1,138 @@
+"""The SmartMocap pipeline end to end on small synthetic captures, against ground truth; its
+chunking and stitching; the Ray executor against the local one; degenerate rigs."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from mocapgraph.body import load_body_model
+from mocapgraph.data_tools.evaluation import evaluate
+from mocapgraph.data_tools.synthetic import synthesize
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.pipelines.smartmocap import SmartmocapOptions, chunk_bounds, run_smartmocap, stitch
+from mocapgraph.pipelines.uncalibrated import Estimate, Rig
+
+
+@pytest.fixture(scope="module")
+def capture():
+    return synthesize("rich", seed=0, duration_s=2.0)
+
+
+def run(capture, **kw):
+    kw.setdefault("motion_prior", "none")
+    kw.setdefault("initialiser", "pnp")
+    result = run_smartmocap(capture, SmartmocapOptions(progress=False, **kw))
+    return result, evaluate(result, capture).metrics
+
+
+@pytest.fixture(scope="module")
+def solved(capture):
+    return run(capture)
+
+
+def test_body_and_cameras_recovered(solved):
+    result, m = solved
+    assert result.world_frame == "ground_plane"
+    assert m["mpjpe_m"] < 0.04 and m["pa_mpjpe_m"] < 0.03 and m["mpe_m"] < 0.03
+    assert m["mcpe_m"] < 0.06 and m["mcoe_rad"] < 0.02
+    assert m["moving_mcpe_procrustes_m"] < 0.15
+    assert result.parameters["chunks"] == 3
+
+
+def test_world_is_the_ground_plane_under_the_first_root(solved, capture):
+    """Origin under the first root, Z up: the soles on z = 0 and the first root above (0, 0)."""
+    result, _ = solved
+    assert np.linalg.norm(result.root[0, :2, 3]) < 0.01
+    body = load_body_model()
+    feet = body.forward(result.shape, result.root, result.pose, keypoints="body").keypoints[:, 17:]
+    assert abs(np.quantile(feet[..., 2].min(axis=1), 0.1)) < 0.05
+
+
+def test_covariances_are_reported(solved):
+    result, _ = solved
+    cov = result.covariances["joints"]
+    assert cov.shape == (len(result.timestamps), 22, 3, 3) and np.all(np.linalg.eigvalsh(cov) > 0)
+    static = result.covariances["camera:cam2"]
+    assert static.shape == (len(result.cameras["cam2"].timestamps), 6, 6)
+    np.testing.assert_allclose(static[0], static[-1])  # one pose for the whole capture
+    assert np.all(np.linalg.eigvalsh(result.covariances["camera:handheld"]) > 0)
+
+
+def test_ray_executor_gives_the_local_result(capture, solved):
+    pytest.importorskip("ray", reason="the [distributed] extra is part of the test install")
+    result, _ = run(capture, executor="ray", workers=2, covariances=False)
+    np.testing.assert_allclose(result.joints, solved[0].joints, atol=1e-9)
+    np.testing.assert_allclose(result.cameras["handheld"].world_T_camera, solved[0].cameras["handheld"].world_T_camera, atol=1e-9)
+
+
+def test_motion_prior_runs_on_the_chunks_and_the_sequence(capture):
+    result, m = run(capture, motion_prior="vae", covariances=False)
+    assert m["mpjpe_m"] < 0.05 and m["mcpe_m"] < 0.08
+
+
+def test_chunk_bounds_share_their_boundary_state():
+    assert chunk_bounds(61, 25) == [(0, 25), (24, 49), (48, 61)]
+    assert chunk_bounds(55, 25) == [(0, 25), (24, 55)]  # a tail of 6 joins the last chunk
+    assert chunk_bounds(10, 25) == [(0, 10)]
+
+
+def test_stitching_undoes_each_chunks_heading_and_offset():
+    """Chunks of one true estimate, each moved by its own heading and offset: stitched, the
+    whole matches the truth up to the first chunk's frame."""
+    body = load_body_model()
+    rng = np.random.default_rng(0)
+    n, C = 61, 2
+    roots = np.tile(np.eye(4), (n, 1, 1))
+    roots[:, :3, 3] = np.cumsum(rng.normal(scale=0.03, size=(n, 3)), axis=0) * [1, 1, 0] + [0, 0, 0.9]
+    cams = np.tile(np.eye(4), (C, n, 1, 1))
+    cams[0, :, :3, 3] = [4.0, 0.0, 2.0]
+    cams[1, :, :3, 3] = np.column_stack([np.linspace(-3, 3, n), np.full(n, 4.0), np.full(n, 1.5)])
+    truth = Estimate(roots, rng.normal(scale=0.2, size=(n, 21, 3)), body.default_shape, cams)
+    rig = Rig(["static", "moving"], [False, True], np.zeros((C, 4)), np.arange(n) / 30, np.tile(np.arange(n), (C, 1)), [[]] * n, 0)
+    parts = []
+    for k, (a, b) in enumerate(chunk_bounds(n, 25)):
+        A = np.eye(4)
+        if k:
+            c, s = np.cos(0.2 * k), np.sin(0.2 * k)
+            A[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+            A[:3, 3] = [0.5 * k, -0.3 * k, 0.0]
+        parts.append((a, b, truth.subset(a, b).transformed(A)))
+    stitched = stitch(body, rig, parts)
+    np.testing.assert_allclose(stitched.roots, truth.roots, atol=1e-9)
+    np.testing.assert_allclose(stitched.cameras, truth.cameras, atol=1e-9)
+
+
+def cameras_only(capture, names):
+    return replace(capture, cameras=[c for c in capture.cameras if c.name in names])
+
+
+def test_single_static_camera_says_what_it_cannot_determine(capture, solved):
+    result, m = run(cameras_only(capture, {"cam1"}))
+    notes = " ".join(result.parameters["notes"])
+    assert "a single camera" in notes and "absolute scale" in notes
+    # The body's size, the only scale, is less certain from one view than from eight (measured 1.8x).
+    assert np.trace(result.covariances["shape"]) > 1.3 * np.trace(solved[0].covariances["shape"])
+    assert m["pa_mpjpe_m"] < 0.08
+
+
+def test_all_cameras_moving_runs_and_says_so():
+    cap = synthesize("phones", seed=1, duration_s=1.5)
+    result, m = run(cameras_only(cap, {"phone_walk1", "phone_walk2"}), covariances=False)
+    assert "no static camera" in " ".join(result.parameters["notes"])
+    assert np.isfinite(result.joints).all() and m["pa_mpjpe_m"] < 0.08
+
+
+def test_person_standing_still_flags_the_ground_tilt():
+    cap = synthesize("rich", seed=2, duration_s=1.0, motion="stand")
+    result, m = run(cap, covariances=False)
+    assert "feet spread only" in " ".join(result.parameters["notes"])
+    assert m["mpjpe_m"] < 0.05
+
+
+def test_no_detections_is_one_clear_error(capture):
+    cams = [replace(c, detectors={}) for c in capture.cameras]
+    with pytest.raises(MocapgraphError, match="no camera has detections"):
+        run(replace(capture, cameras=cams))
