@@ -1,0 +1,86 @@
+"""AirPose and AirPose+ end to end on a small synthetic airpose capture, against ground truth;
+frames left out for low confidence; the command line."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from mocapgraph.data_tools.capture import write_capture
+from mocapgraph.data_tools.evaluation import evaluate
+from mocapgraph.data_tools.result import load_result
+from mocapgraph.data_tools.synthetic import synthesize
+from mocapgraph.pipelines.airpose import AirposeOptions, run_airpose
+from mocapgraph.pipelines.cli import main
+
+
+@pytest.fixture(scope="module")
+def capture():
+    return synthesize("airpose", seed=0, duration_s=3.0)
+
+
+def relative_camera_error(result, capture) -> float:
+    """Mean distance (m) between the estimated and true position of camera 2 in camera 1's frame."""
+    gt = capture.ground_truth
+    c1, c2 = (c.name for c in capture.cameras)
+    truth = np.linalg.inv(gt.cameras[c1]) @ gt.cameras[c2]
+    track = result.cameras[c2]
+    idx = np.searchsorted(capture.camera(c2).timestamps, track.timestamps - 1e-9)
+    return float(np.mean(np.linalg.norm(track.world_T_camera[:, :3, 3] - truth[idx, :3, 3], axis=1)))
+
+
+def run(capture, **kw):
+    kw.setdefault("initialiser", "pnp")
+    result = run_airpose(capture, AirposeOptions(progress=False, **kw))
+    return result, evaluate(result, capture).metrics
+
+
+@pytest.fixture(scope="module")
+def both(capture):
+    return run(capture, refine=False), run(capture)
+
+
+def test_airpose_plus_improves_on_the_initialiser(both, capture):
+    (init, mi), (plus, mp) = both
+    assert plus.world_frame == f"camera_per_frame:{capture.cameras[0].name}"
+    assert mp["pa_mpjpe_m"] < mi["pa_mpjpe_m"] and mp["pa_mpjpe_m"] < 0.04
+    assert mp["mpe_m"] < mi["mpe_m"] and mp["mpe_m"] < 0.8
+    assert relative_camera_error(plus, capture) < relative_camera_error(init, capture)
+    assert relative_camera_error(plus, capture) < 1.5  # camera 2 is about 12 m away
+
+
+def test_camera_one_is_the_identity_and_carries_no_covariance(both, capture):
+    _, (plus, _) = both
+    c1, c2 = (c.name for c in capture.cameras)
+    np.testing.assert_allclose(plus.cameras[c1].world_T_camera, np.tile(np.eye(4), (len(plus.cameras[c1].timestamps), 1, 1)))
+    assert f"camera:{c1}" not in plus.covariances
+    assert np.all(np.linalg.eigvalsh(plus.covariances[f"camera:{c2}"]) > 0)
+
+
+def test_frames_with_too_little_confidence_are_left_out(capture):
+    cams = []
+    for cam in capture.cameras:
+        dets = {}
+        for name, det in cam.detectors.items():
+            kp = det.keypoints.copy()
+            kp[20:26, :, 2] *= 0.05  # a blurred second: every view barely confident
+            dets[name] = replace(det, keypoints=kp)
+        cams.append(replace(cam, detectors=dets))
+    result, metrics = run(replace(capture, cameras=cams), covariances=False)
+    left = result.flags["left_out"]
+    assert left[20:26].all() and left.sum() == 6
+    assert np.isnan(result.joints[left]).all() and np.isfinite(result.joints[~left]).all()
+    assert "6 of" in " ".join(result.parameters["notes"])
+    assert metrics["pa_mpjpe_m"] < 0.05
+
+
+def test_command_line(capture, tmp_path, capsys):
+    cap_dir = write_capture(capture, tmp_path / "cap")
+    assert main(["run", "airpose", str(cap_dir), "--out", str(tmp_path / "res"), "--initialiser", "pnp", "--quiet", "--no-covariances"]) == 0
+    assert "AirPose+" in capsys.readouterr().out
+    result = load_result(tmp_path / "res")
+    assert result.pipeline == "airpose" and result.flags["left_out"].dtype == bool
+    assert main(["eval", str(tmp_path / "res")]) == 0
+    assert "rigid per frame" in capsys.readouterr().out
