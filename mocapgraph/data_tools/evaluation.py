@@ -137,7 +137,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         out["mpjpe_keypoints_m"] = float(M.mpjpe_m(est_kp, ref_kp[:, mapped]))
         per_frame["mpjpe_keypoints_m"] = M.mpjpe_m(est_kp, ref_kp[:, mapped]).per_item
 
-    est_cams, ref_cams, moving_pos, moving_ref = [], [], [], []
+    est_cams, ref_cams, moving_pos, moving_ref, static_est, static_ref = [], [], [], [], [], []
     for name, track in result.cameras.items():
         truth = gt.cameras.get(name)
         if truth is None:
@@ -150,6 +150,9 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         est_cams.append(est)
         ref_cams.append(ref)
         out[f"mcpe_m.{name}"] = float(M.mcpe_m(est, ref))
+        if not cam.moving:
+            static_est.append(est)
+            static_ref.append(ref)
         if cam.moving and len(est) >= 3:
             fit = procrustes_trajectory(est[:, :3, 3], ref[:, :3, 3], est[:, :3, :3], ref[:, :3, :3])
             moving_pos.append(fit.apply_pose(est))
@@ -157,6 +160,9 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
     if est_cams:
         out["mcpe_m"] = float(M.mcpe_m(np.concatenate(est_cams), np.concatenate(ref_cams)))
         out["mcoe_rad"] = float(M.mcoe_rad(np.concatenate(est_cams), np.concatenate(ref_cams)))
+    if static_est:
+        out["static_mcpe_m"] = float(M.mcpe_m(np.concatenate(static_est), np.concatenate(static_ref)))
+        out["static_mcoe_rad"] = float(M.mcoe_rad(np.concatenate(static_est), np.concatenate(static_ref)))
     if moving_pos:
         out["moving_mcpe_procrustes_m"] = float(M.mcpe_m(np.concatenate(moving_pos), np.concatenate(moving_ref)))
         out["moving_mcoe_procrustes_rad"] = float(M.mcoe_rad(np.concatenate(moving_pos), np.concatenate(moving_ref)))

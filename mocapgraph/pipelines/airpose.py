@@ -54,6 +54,7 @@ class AirposeOptions:
     """Parameters of AirPose / AirPose+ (units in the names)."""
 
     initialiser: str = "auto"
+    regressor_variant: str = "full"  # the regressor's ablation variants: "no_exchange", "no_crop"
     refine: bool = True  # AirPose+ (False: the initialiser's estimate alone)
     min_confidence: float = 3.0  # summed keypoint confidence over the views a frame needs
     iterations: int = 30
@@ -96,7 +97,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     notes = list(capture.notes)
     if (~keep).any():
         notes.append(f"{int((~keep).sum())} of {len(keep)} frames left out: total keypoint confidence below {options.min_confidence}")
-    views, used = view_bodies(rig, body, options.initialiser)
+    views, used = view_bodies(rig, body, options.initialiser, options.regressor_variant)
     notes.append(f"initialised from the {used}")
     ref_T_c, known = relative_cameras(views, rig.moving, 0)
     placed = [bool(known[c].any()) for c in range(rig.num_cameras)]
@@ -139,7 +140,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     if options.covariances and graph is not None:
         add_covariances(result, rg, graph, values, estimate)
     result = _with_left_out(result, full.times, keep)
-    result.parameters.update(seconds=round(seconds, 3), frames_per_second=round(n / max(seconds, 1e-9), 2), notes=notes)
+    result.parameters.update(initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(n / max(seconds, 1e-9), 2), notes=notes)
     return result
 
 

@@ -263,8 +263,11 @@ def _reference_camera(capture: Capture, seen: list[bool]) -> int:
     return seen.index(True)
 
 
-def initial_estimate(capture: Capture, rig: Rig, body: BodyModel, options: SmartmocapOptions, notes: list[str]) -> tuple[Estimate, list[bool]]:
-    """Body and cameras in SmartMocap's world from the views; which cameras could be placed."""
+def initial_estimate(
+    capture: Capture, rig: Rig, body: BodyModel, options: SmartmocapOptions, notes: list[str]
+) -> tuple[Estimate, list[bool], str]:
+    """Body and cameras in SmartMocap's world from the views; which cameras could be placed;
+    which initialiser gave the views."""
     views, used = view_bodies(rig, body, options.initialiser)
     notes.append(f"initialised from the {used}")
     ref_T_c, known = relative_cameras(views, rig.moving, rig.reference)
@@ -279,7 +282,7 @@ def initial_estimate(capture: Capture, rig: Rig, body: BodyModel, options: Smart
             "direction and rests on the motion prior and the weak gauge prior (its covariance says how well)"
         )
     world_T_ref = np.linalg.inv(ground.ref_T_world)
-    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, world_T_ref @ ref_T_c), placed
+    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, world_T_ref @ ref_T_c), placed, used
 
 
 def _degeneracy_notes(rig: Rig, placed: list[bool]) -> list[str]:
@@ -306,7 +309,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         raise MocapgraphError(f"capture {capture.name!r}: no camera has detections")
     rig = rig_from_capture(capture, options.detectors, reference=_reference_camera(capture, seen))
     say = lambda m: log("smartmocap", options.progress, m)  # noqa: E731
-    start, placed = initial_estimate(capture, rig, body, options, notes)
+    start, placed, used = initial_estimate(capture, rig, body, options, notes)
     for c, name in enumerate(rig.names):
         if not placed[c]:
             notes.append(f"camera {name}: never saw the person together with the reference camera {rig.names[rig.reference]}; not estimated")
@@ -338,7 +341,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     if options.covariances:
         add_covariances(result, rg, graph, solved_final.values, estimate)
     result.parameters.update(
-        seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes
+        initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes
     )
     return result
 

@@ -149,10 +149,11 @@ def rig_from_capture(capture: Capture, detectors: tuple[str, ...] | None = None,
     return Rig(names, [c.moving for c in capture.cameras], intrinsics, np.array([g.time for g in groups]), frames, states, reference)
 
 
-def view_bodies(rig: Rig, body: BodyModel, initialiser: str) -> tuple[list[ViewBodies], str]:
+def view_bodies(rig: Rig, body: BodyModel, initialiser: str, variant: str = "full") -> tuple[list[ViewBodies], str]:
     """Per camera, the body relative to it at every state, from ``initialiser``: ``"regressor"``
-    (the shipped fusion regressor), ``"pnp"`` (the mean body by PnP), or ``"auto"`` (the
-    regressor, or PnP when its weights cannot be loaded). Returns the views and what was used."""
+    (the shipped fusion regressor, ``variant`` of its ablation), ``"pnp"`` (the mean body by
+    PnP), or ``"auto"`` (the regressor, or PnP when its weights cannot be loaded). Returns the
+    views and what was used."""
     kps = [rig.view_keypoints(c) if any(o.camera == c for obs in rig.states for o in obs) else None for c in range(rig.num_cameras)]
     N = len(rig.states)
     empty = ViewBodies(np.tile(np.eye(4), (N, 1, 1)), np.zeros((N, NUM_JOINTS - 1, 3)), np.tile(body.default_shape, (N, 1)), np.zeros(N, bool))
@@ -160,7 +161,7 @@ def view_bodies(rig: Rig, body: BodyModel, initialiser: str) -> tuple[list[ViewB
         try:
             from mocapgraph.priors.fusion_regressor import ViewInput, load_default_fusion_regressor
 
-            regressor = load_default_fusion_regressor()
+            regressor = load_default_fusion_regressor(variant)
         except (MocapgraphError, ImportError) as exc:
             if initialiser == "regressor":
                 raise MocapgraphError(f"initialiser 'regressor': {exc}") from None
@@ -171,7 +172,7 @@ def view_bodies(rig: Rig, body: BodyModel, initialiser: str) -> tuple[list[ViewB
             out = [empty] * rig.num_cameras
             for c, p in zip(seen, predicted):
                 out[c] = ViewBodies(p.camera_T_root, p.pose, p.shape, p.valid)
-            return out, "regressor"
+            return out, "regressor" if variant == "full" else f"regressor ({variant})"
     K = [np.array([[f[0], 0, f[2]], [0, f[1], f[3]], [0, 0, 1.0]]) for f in rig.intrinsics]
     return [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)], "pnp"
 
