@@ -88,24 +88,43 @@ def in_capture_frame(result: Result, capture: Capture) -> Result:
     return moved
 
 
-def evaluate(result: Result, capture: Capture) -> Evaluation:
-    """All metrics that the result's contents allow, against the capture's ground truth."""
-    gt = capture.ground_truth
-    if gt is None:
-        raise MocapgraphError(f"capture {capture.name!r} has no ground truth to evaluate against")
-    per_frame_alignment = result.world_frame.startswith(PER_FRAME_CAMERA)
-    result = in_capture_frame(result, capture)
+def _matched(result: Result, gt) -> tuple[np.ndarray, np.ndarray]:
+    """Which body states have ground truth within half a frame (``(T,)`` bool) and its indices."""
     step = np.median(np.diff(gt.timestamps)) if len(gt.timestamps) > 1 else 1.0
     idx = match_times(gt.timestamps, result.timestamps, tolerance=0.5 * step)
     have = idx >= 0
     if not have.any():
         raise MocapgraphError("no result timestamp lies within half a ground-truth frame of the ground truth")
-    sel = idx[have]
-    ref_joints = gt.joints[sel]
-    align, how = _alignment(result, capture, ref_joints, result.joints[have])
-    if per_frame_alignment:
+    return have, idx[have]
+
+
+def aligned(result: Result, capture: Capture) -> tuple[Result, str]:
+    """The result moved into the capture's world frame as its metrics' definitions say (rigid
+    per frame for ``camera_per_frame``, rigid for ``camera:``, a similarity over all joints for
+    other frames, nothing for ``capture``), and a description of the alignment."""
+    gt = capture.ground_truth
+    if gt is None:
+        raise MocapgraphError(f"capture {capture.name!r} has no ground truth to evaluate against")
+    per_frame = result.world_frame.startswith(PER_FRAME_CAMERA)
+    result = in_capture_frame(result, capture)
+    have, sel = _matched(result, gt)
+    align, how = _alignment(result, capture, gt.joints[sel], result.joints[have])
+    if per_frame:
         how = "rigid per frame: the reference camera's true pose at each body timestamp"
-    est_joints = align.apply(result.joints[have])
+    moved = replace(result, cameras={n: CameraTrack(t.timestamps, align.apply_pose(t.world_T_camera)) for n, t in result.cameras.items()})
+    moved.joints = align.apply(result.joints)
+    moved.keypoints = None if result.keypoints is None else align.apply(result.keypoints)
+    moved.root = None if result.root is None else align.apply_pose(result.root)
+    return moved, how
+
+
+def evaluate(result: Result, capture: Capture) -> Evaluation:
+    """All metrics that the result's contents allow, against the capture's ground truth."""
+    result, how = aligned(result, capture)
+    gt = capture.ground_truth
+    have, sel = _matched(result, gt)
+    ref_joints = gt.joints[sel]
+    est_joints = result.joints[have]
     out: dict[str, float] = {}
     per_frame: dict[str, np.ndarray] = {"timestamps": result.timestamps[have]}
 
@@ -119,7 +138,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
             out["acceleration_error_m_s2"] = float(M.acceleration_error_m_s2(est_joints, ref_joints, fps))
 
     if result.has_body_parameters:
-        est_root = align.apply_pose(result.root[have])
+        est_root = result.root[have]
         ref_root = gt.root[sel]
         out["ra_mpjpe_m"] = float(M.ra_mpjpe_m(est_joints, ref_joints, est_root, ref_root))
         out["mpe_m"] = float(M.mpe_m(est_root[:, :3, 3], ref_root[:, :3, 3]))
@@ -133,7 +152,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         body = load_body_model("anny")
         ref_kp = body.forward(gt.shape, gt.root[sel], gt.pose[sel], keypoints=result.keypoint_format).keypoints
         mapped = body.table(gt.shape, result.keypoint_format).mapped
-        est_kp = align.apply(result.keypoints[have])[:, mapped]
+        est_kp = result.keypoints[have][:, mapped]
         out["mpjpe_keypoints_m"] = float(M.mpjpe_m(est_kp, ref_kp[:, mapped]))
         per_frame["mpjpe_keypoints_m"] = M.mpjpe_m(est_kp, ref_kp[:, mapped]).per_item
 
@@ -145,7 +164,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         cam = capture.camera(name)
         cidx = match_times(cam.timestamps, track.timestamps, tolerance=0.5 / cam.frame_rate)
         ok = cidx >= 0
-        est = align.apply_pose(track.world_T_camera[ok])
+        est = track.world_T_camera[ok]
         ref = truth[cidx[ok]]
         est_cams.append(est)
         ref_cams.append(ref)

@@ -1,8 +1,9 @@
 """Evaluation reports: a metrics table and the thesis' figures, as a small HTML page with PNGs.
 
-Figures: the estimated root trajectory against ground truth, one panel per axis; and the joint
+Figures: the estimated root trajectory against ground truth, one panel per axis; the joint
 error per frame over the number of detections per frame (as a grey background), as AirCap's
-thesis plots them.
+thesis plots them; and, when the results estimate cameras, every camera's estimated and true
+trajectory in 3D. Results are drawn after the alignment ``eval`` uses for their world frame.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.data_tools.capture import Capture
-from mocapgraph.data_tools.evaluation import Evaluation
+from mocapgraph.data_tools.evaluation import Evaluation, aligned
 from mocapgraph.data_tools.result import Result
 
 
@@ -71,10 +72,41 @@ def plot_error_per_frame(evaluations: dict[str, Evaluation], result: Result, pat
     return path
 
 
+def plot_camera_trajectories(results: dict[str, Result], capture: Capture, path: Path) -> Path:
+    """3D: each camera's true trajectory (black; a static camera as a triangle) and each
+    result's estimate (coloured, same marker), with the subject's true root path (grey)."""
+    plt = _pyplot()
+    gt = capture.ground_truth
+    fig = plt.figure(figsize=(8, 7))
+    ax = fig.add_subplot(projection="3d")
+    ax.plot(*gt.root[:, :3, 3].T, color="0.6", lw=1, label="subject (true root)")
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for c, cam in enumerate(capture.cameras):
+        truth = gt.cameras.get(cam.name)
+        if truth is None:
+            continue
+        style = dict(marker="^", ms=7, ls="none") if not cam.moving else dict(lw=2)
+        ax.plot(*truth[:, :3, 3].T, color="black", label="true cameras" if c == 0 else None, **style)
+        ax.text(*truth[0, :3, 3], f" {cam.name}", fontsize=7)
+        for k, (label, res) in enumerate(results.items()):
+            track = res.cameras.get(cam.name)
+            if track is not None:
+                est = dict(marker="v", ms=6, ls="none") if not cam.moving else dict(lw=1, ls="--")
+                ax.plot(*track.world_T_camera[:, :3, 3].T, color=colours[k % len(colours)], label=label if c == 0 else None, **est)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
 def write_report(
     out_dir: Path, title: str, capture: Capture, results: dict[str, Result], evaluations: dict[str, Evaluation]
 ) -> Path:
-    """``report.html`` with a metrics table (one row per result) and the two figures."""
+    """``report.html`` with a metrics table (one row per result) and the figures."""
     out_dir.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for ev in evaluations.values() for k in ev.metrics if "." not in k))
     rows = []
@@ -83,8 +115,14 @@ def write_report(
         rows.append(f"<tr><th>{html.escape(label)}</th>{cells}<td>{html.escape(ev.alignment)}</td></tr>")
     header = "".join(f"<th>{html.escape(k)}</th>" for k in keys)
     main = next(iter(results.values()))
-    plot_root_trajectory(results, capture, out_dir / "root_trajectory.png")
+    moved = {label: aligned(res, capture)[0] for label, res in results.items()}
+    plot_root_trajectory(moved, capture, out_dir / "root_trajectory.png")
     plot_error_per_frame(evaluations, main, out_dir / "error_per_frame.png")
+    cameras = ""
+    if any(res.cameras for res in results.values()):
+        plot_camera_trajectories(moved, capture, out_dir / "camera_trajectories.png")
+        cameras = '<h2>Camera trajectories (after alignment)</h2><img src="camera_trajectories.png" alt="estimated and true camera trajectories">'
+
     page = f"""<!doctype html>
 <html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;margin:2em}} table{{border-collapse:collapse}}
@@ -97,6 +135,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px;text-align:right}}</style></head><b
 </table>
 <h2>Root trajectory</h2><img src="root_trajectory.png" alt="root trajectory per axis">
 <h2>Error per frame</h2><img src="error_per_frame.png" alt="MPJPE per frame with detections">
+{cameras}
 </body></html>
 """
     path = out_dir / "report.html"

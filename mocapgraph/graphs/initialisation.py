@@ -23,8 +23,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mocapgraph.body.keypoint_formats import COCO17, get_format
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
+from mocapgraph.data_tools.triangulation import triangulate_points
 from mocapgraph.errors import MocapgraphError
 
 MIN_POINTS = 6
@@ -194,6 +196,59 @@ def _fill_gaps(poses: np.ndarray, known: np.ndarray) -> np.ndarray:
     nearest = frames[np.abs(t[:, None] - frames[None, :]).argmin(axis=1)]
     out[~known, :3, :3] = poses[nearest[~known], :3, :3]
     return out
+
+
+def coco_points(keypoints: np.ndarray, fmt: str) -> np.ndarray:
+    """``(..., 17, 3)``: the COCO-17 points of keypoints ``(..., F, 3)`` of format ``fmt`` (every
+    registered format names them all), so that views with different detectors can be triangulated."""
+    names = get_format(fmt).names
+    return keypoints[..., [names.index(n) for n in COCO17], :]
+
+
+def moving_cameras_from_static(
+    keypoints: list[np.ndarray | None], Ks: list[np.ndarray], ref_T_c: np.ndarray, known: np.ndarray, moving: list[bool]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Moving cameras placed again by PnP against the keypoints triangulated from the static ones.
+
+    A PnP of the mean body is poor for a camera far from a walking person (metres off, measured
+    on ``phones``); the static cameras, averaged over every frame, are good, so their
+    triangulation of the person's actual keypoints gives a moving camera real 3D points to
+    resect from. Needs two placed static cameras; otherwise the input is returned.
+
+    Args:
+        keypoints: per camera ``(N, 17, 3)`` COCO-17 undistorted pixels and confidences, or None.
+        Ks: per camera ``(3, 3)``; ``ref_T_c``, ``known``: from :func:`relative_cameras`.
+    """
+    static = [c for c in range(len(Ks)) if not moving[c] and keypoints[c] is not None and known[c].any()]
+    if len(static) < 2:
+        return ref_T_c, known
+    out, ok = ref_T_c.copy(), known.copy()
+    P = np.stack([Ks[c] @ np.linalg.inv(ref_T_c[c, 0])[:3] for c in static])
+    N = len(ref_T_c[0])
+    points = np.full((N, 17, 3), np.nan)
+    for t in range(N):
+        obs = np.stack([keypoints[c][t] for c in static])
+        conf = np.where(np.nan_to_num(obs[..., 2]) >= MIN_CONFIDENCE, obs[..., 2], 0.0)
+        points[t] = triangulate_points(P, obs[..., :2], conf)
+    for c in range(len(Ks)):
+        if not moving[c] or keypoints[c] is None:
+            continue
+        poses, placed = np.tile(np.eye(4), (N, 1, 1)), np.zeros(N, dtype=bool)
+        for t in range(N):
+            conf = np.nan_to_num(keypoints[c][t, :, 2])
+            use = (conf >= MIN_CONFIDENCE) & np.isfinite(points[t]).all(-1) & np.isfinite(keypoints[c][t, :, :2]).all(-1)
+            if use.sum() < MIN_POINTS:
+                continue
+            found, rvec, tvec, inliers = cv2.solvePnPRansac(
+                points[t, use], keypoints[c][t, use, :2].astype(np.float64), Ks[c], None, reprojectionError=12.0, flags=cv2.SOLVEPNP_SQPNP
+            )  # fmt: skip
+            if found and inliers is not None and len(inliers) >= MIN_POINTS:
+                poses[t] = np.linalg.inv(_rigid(cv2.Rodrigues(rvec)[0], tvec[:, 0]))
+                placed[t] = True
+        if placed.sum() >= 2:
+            placed[placed] = _temporal_inliers(poses[placed, :3, 3])
+            out[c], ok[c] = _fill_gaps(poses, placed), placed
+    return out, ok
 
 
 def fuse_bodies(views: list[ViewBodies], ref_T_c: np.ndarray, known: np.ndarray) -> ViewBodies:

@@ -33,7 +33,7 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.data_tools.capture import Capture, load_capture
 from mocapgraph.data_tools.result import Result, write_result
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.initialisation import fuse_bodies, ground_frame, relative_cameras, rotation_mean
+from mocapgraph.graphs.initialisation import fuse_bodies, ground_frame, moving_cameras_from_static, relative_cameras, rotation_mean
 from mocapgraph.graphs.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import solve_staged
 from mocapgraph.pipelines.uncalibrated import (
@@ -271,6 +271,7 @@ def initial_estimate(
     views, used = view_bodies(rig, body, options.initialiser)
     notes.append(f"initialised from the {used}")
     ref_T_c, known = relative_cameras(views, rig.moving, rig.reference)
+    ref_T_c, known = moving_cameras_from_static([rig.coco_keypoints(c) for c in range(rig.num_cameras)], rig.camera_matrices(), ref_T_c, known, rig.moving)
     placed = [bool(known[c].any()) for c in range(rig.num_cameras)]
     fused = fuse_bodies(views, ref_T_c, known)
     lo, hi = body.shape_bounds.T

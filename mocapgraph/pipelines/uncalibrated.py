@@ -37,7 +37,7 @@ from mocapgraph.factors.priors import (
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import frame_groups
-from mocapgraph.graphs.initialisation import ViewBodies, pnp_view
+from mocapgraph.graphs.initialisation import ViewBodies, coco_points, pnp_view
 from mocapgraph.graphs.keys import camera_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions
 from mocapgraph.graphs.uncertainty import joint_covariances
@@ -108,6 +108,17 @@ class Rig:
                     out[i, :, 2] = np.where(o.weights > 0, o.weights, np.nan)
         return out, fmt
 
+    def coco_keypoints(self, c: int) -> np.ndarray | None:
+        """``(N, 17, 3)`` camera ``c``'s COCO-17 points at every state, or None without detections."""
+        if not any(o.camera == c for obs in self.states for o in obs):
+            return None
+        keypoints, fmt = self.view_keypoints(c)
+        return coco_points(keypoints, fmt)
+
+    def camera_matrices(self) -> list[np.ndarray]:
+        """Per camera, ``K (3, 3)`` of its undistorted image."""
+        return [np.array([[f[0], 0, f[2]], [0, f[1], f[3]], [0, 0, 1.0]]) for f in self.intrinsics]
+
     def subset(self, start: int, stop: int) -> Rig:
         """The states ``[start, stop)`` (frames and observations keep their camera frame indices)."""
         return Rig(
@@ -166,14 +177,14 @@ def view_bodies(rig: Rig, body: BodyModel, initialiser: str, variant: str = "ful
             if initialiser == "regressor":
                 raise MocapgraphError(f"initialiser 'regressor': {exc}") from None
         else:
-            K = [np.array([[f[0], 0, f[2]], [0, f[1], f[3]], [0, 0, 1.0]]) for f in rig.intrinsics]
+            K = rig.camera_matrices()
             seen = [c for c in range(rig.num_cameras) if kps[c] is not None]
             predicted = regressor.predict([ViewInput(kps[c][0], kps[c][1], K[c]) for c in seen])
             out = [empty] * rig.num_cameras
             for c, p in zip(seen, predicted):
                 out[c] = ViewBodies(p.camera_T_root, p.pose, p.shape, p.valid)
             return out, "regressor" if variant == "full" else f"regressor ({variant})"
-    K = [np.array([[f[0], 0, f[2]], [0, f[1], f[3]], [0, 0, 1.0]]) for f in rig.intrinsics]
+    K = rig.camera_matrices()
     return [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)], "pnp"
 
 
