@@ -51,9 +51,9 @@ def test_missing_smpl_file_is_one_clear_error(tmp_path, capsys):
     assert "SMPL_NEUTRAL.npz" in err and err.count("\n") == 1
 
 
-def test_demo_runs_aircap_and_draws_the_body(tmp_path, capsys):
-    """The demo end to end on a short capture; without a motion directory it uses built-in poses."""
-    args = ["demo", "--out", str(tmp_path / "demo"), "--motion-dir", str(tmp_path / "no-motion"), "--duration", "1.5"]
+def test_demo_runs_aircap_and_smartmocap_and_draws_the_body(tmp_path, capsys):
+    """The demo end to end on short captures; without a motion directory it uses built-in poses."""
+    args = ["demo", "--out", str(tmp_path / "demo"), "--motion-dir", str(tmp_path / "no-motion"), "--duration", "1.5", "--phones-duration", "1.5"]
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "built-in poses: T-pose, stride, wave, squat" in out
@@ -62,6 +62,10 @@ def test_demo_runs_aircap_and_draws_the_body(tmp_path, capsys):
     assert report.exists() and "mpjpe_m" in report.read_text()
     for figure in ("root_trajectory.png", "error_per_frame.png"):
         assert (tmp_path / "demo" / figure).read_bytes()[:4] == b"\x89PNG"
+    assert "SmartMocap, motion prior       MPJPE" in out
+    smart = tmp_path / "demo" / "smartmocap"
+    assert "static_mcpe_m" in (smart / "report.html").read_text()
+    assert (smart / "camera_trajectories.png").read_bytes()[:4] == b"\x89PNG"
     png = tmp_path / "demo" / "body_poses.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     assert not list((tmp_path / "demo").glob("*.tmp*"))
