@@ -347,6 +347,33 @@ def build_parser() -> argparse.ArgumentParser:
     _add_body_args(train_motion)
     train_motion.set_defaults(func=cmd_priors_train_motion)
 
+    def cmd_priors_train_fusion(args) -> None:
+        from mocapgraph.data_tools.cmu_motion import motion_dir
+        from mocapgraph.priors.fusion_training import train_fusion_regressor
+
+        regressor = train_fusion_regressor(
+            args.motion or motion_dir(), _body(args), variant=args.variant, epochs=args.epochs, samples=args.samples,
+            seed=args.seed, progress=_progress,
+        )  # fmt: skip
+        path = regressor.save(args.out)
+        info, val = regressor.info, regressor.info["val"]
+        print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {val['frames']} bodies, 2 views each")
+        print(f"  root-relative MPJPE       {1000 * val['mpjpe_m']:.0f} mm (camera frame)")
+        print(f"  root position             {val['root_position_m']:.2f} m (depth {val['root_depth_m']:.2f} m, rotation {val['root_rotation_deg']:.1f}°)")
+        print(f"  camera 2 in camera 1      {val['relative_camera_m']:.2f} m, {val['relative_camera_deg']:.1f}°")
+        print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s training")
+        print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KB)")
+
+    train_fusion = train.add_parser("fusion", help="multi-view fusion regressor: body and camera-relative root from 2D keypoints (docs/fusion-regressor.md)")
+    train_fusion.add_argument("--motion", type=Path, metavar="DIR", help="CMU motion directory (default ../shared/motion/cmu_train)")
+    train_fusion.add_argument("--out", type=Path, required=True, metavar="FILE", help=".npz file to write")
+    train_fusion.add_argument("--variant", choices=("full", "no_exchange", "no_crop"), default="full", help="ablation variant (default full)")
+    train_fusion.add_argument("--epochs", type=int, default=28, help="training epochs (default 28)")
+    train_fusion.add_argument("--samples", type=int, default=32768, help="synthetic samples per epoch, fresh cameras each (default 32768)")
+    train_fusion.add_argument("--seed", type=int, default=0, help="seed of the weights, the synthetic views and the subject split (default 0)")
+    _add_body_args(train_fusion)
+    train_fusion.set_defaults(func=cmd_priors_train_fusion)
+
     demo = sub.add_parser("demo", help="pose the default body and draw it (grows with the pipelines)")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
     demo.add_argument("--motion-dir", type=Path, help="CMU motion directory (default ../shared/motion/cmu_train)")
