@@ -62,7 +62,7 @@ def test_input_mistakes_stop_the_batch_before_it_runs(captures, tmp_path):
     twin.mkdir(parents=True)
     with pytest.raises(MocapgraphError, match=f"captures share a directory name.*{captures[0].name}: "):
         run_batch("baseline", [captures[0], twin], out)
-    with pytest.raises(MocapgraphError, match="pipeline 'nope': choose one of aircap, baseline"):
+    with pytest.raises(MocapgraphError, match="pipeline 'nope': choose one of aircap, airpose, baseline, smartmocap"):
         run_batch("nope", captures, out)
     assert not out.exists()
     (out / captures[1].name).mkdir(parents=True)

@@ -160,32 +160,47 @@ def rig_from_capture(capture: Capture, detectors: tuple[str, ...] | None = None,
     return Rig(names, [c.moving for c in capture.cameras], intrinsics, np.array([g.time for g in groups]), frames, states, reference)
 
 
+DISAGREEMENT = 0.5
+"""Median relative difference of the body's depth between the regressor and the PnP of the mean
+body above which ``"auto"`` trusts the PnP for that view: the regressor was trained on synthetic
+views and can be far off on a view unlike them, while PnP is only as wrong as the mean body."""
+
+
 def view_bodies(rig: Rig, body: BodyModel, initialiser: str, variant: str = "full") -> tuple[list[ViewBodies], str]:
     """Per camera, the body relative to it at every state, from ``initialiser``: ``"regressor"``
     (the shipped fusion regressor, ``variant`` of its ablation), ``"pnp"`` (the mean body by
-    PnP), or ``"auto"`` (the regressor, or PnP when its weights cannot be loaded). Returns the
-    views and what was used."""
+    PnP), or ``"auto"`` (the regressor, with PnP for a view where the two disagree by more than
+    :data:`DISAGREEMENT` and for all views when its weights cannot be loaded). Returns the views
+    and a description of what was used."""
     kps = [rig.view_keypoints(c) if any(o.camera == c for obs in rig.states for o in obs) else None for c in range(rig.num_cameras)]
     N = len(rig.states)
-    empty = ViewBodies(np.tile(np.eye(4), (N, 1, 1)), np.zeros((N, NUM_JOINTS - 1, 3)), np.tile(body.default_shape, (N, 1)), np.zeros(N, bool))
-    if initialiser in ("regressor", "auto"):
-        try:
-            from mocapgraph.priors.fusion_regressor import ViewInput, load_default_fusion_regressor
-
-            regressor = load_default_fusion_regressor(variant)
-        except (MocapgraphError, ImportError) as exc:
-            if initialiser == "regressor":
-                raise MocapgraphError(f"initialiser 'regressor': {exc}") from None
-        else:
-            K = rig.camera_matrices()
-            seen = [c for c in range(rig.num_cameras) if kps[c] is not None]
-            predicted = regressor.predict([ViewInput(kps[c][0], kps[c][1], K[c]) for c in seen])
-            out = [empty] * rig.num_cameras
-            for c, p in zip(seen, predicted):
-                out[c] = ViewBodies(p.camera_T_root, p.pose, p.shape, p.valid)
-            return out, "regressor" if variant == "full" else f"regressor ({variant})"
     K = rig.camera_matrices()
-    return [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)], "pnp"
+    empty = ViewBodies(np.tile(np.eye(4), (N, 1, 1)), np.zeros((N, NUM_JOINTS - 1, 3)), np.tile(body.default_shape, (N, 1)), np.zeros(N, bool))
+    pnp = [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)] if initialiser != "regressor" else None
+    if initialiser == "pnp":
+        return pnp, "pnp"
+    try:
+        from mocapgraph.priors.fusion_regressor import ViewInput, load_default_fusion_regressor
+
+        regressor = load_default_fusion_regressor(variant)
+    except MocapgraphError as exc:
+        if initialiser == "regressor":
+            raise MocapgraphError(f"initialiser 'regressor': {exc}") from None
+        return pnp, "pnp (the fusion regressor could not be loaded)"
+    seen = [c for c in range(rig.num_cameras) if kps[c] is not None]
+    predicted = regressor.predict([ViewInput(kps[c][0], kps[c][1], K[c]) for c in seen])
+    out = [empty] * rig.num_cameras
+    fallback = []
+    for c, p in zip(seen, predicted):
+        out[c] = ViewBodies(p.camera_T_root, p.pose, p.shape, p.valid)
+        if pnp is not None:
+            both = p.valid & pnp[c].valid
+            depth_pnp = pnp[c].camera_T_root[both, 2, 3]
+            if both.any() and np.median(np.abs(p.camera_T_root[both, 2, 3] - depth_pnp) / depth_pnp) > DISAGREEMENT:
+                out[c] = pnp[c]
+                fallback.append(rig.names[c])
+    used = "regressor" if variant == "full" else f"regressor ({variant})"
+    return out, used + (f"; PnP for {', '.join(fallback)} (the two disagreed)" if fallback else "")
 
 
 @dataclass
