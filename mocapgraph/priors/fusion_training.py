@@ -37,7 +37,8 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import relative_angle, rotvec_to_matrix
 from mocapgraph.body.skeleton import PARENTS
 from mocapgraph.priors.fusion_regressor import (
-    ESTIMATE, POSE, ROOT, SHAPE, TRANSL, FusionNet, FusionRegressor, ViewEstimate, crop_features, decode,
+    ESTIMATE, POSE, ROOT, SHAPE, TRANSL, VARIANTS, FusionNet, FusionRegressor, ViewEstimate, crop_features, decode,
+    load_default_fusion_regressor,
 )  # fmt: skip
 from mocapgraph.priors.pose_vae import rotmat_to_sixd
 from mocapgraph.priors.training import held_out_split, take_files, take_subject
@@ -103,13 +104,33 @@ def load_body_frames(
 
 
 def split_frames(motion_dir, body: BodyModel, val_fraction: float = 0.2, seed: int = 0, stride: int = 4, progress=None):
-    """``(training frames, held-out frames, held-out subjects)`` of the takes in ``motion_dir``."""
+    """``(training frames, held-out frames, held-out subjects)`` of the takes in ``motion_dir``;
+    the held-out frames are :func:`held_out_frames` ``(…, held-out subjects, stride, seed)``."""
     files = take_files(motion_dir)
     subjects = np.array([take_subject(p) for p in files])
     val, held_out = held_out_split(subjects, val_fraction, seed, "takes", progress)
     train = load_body_frames([p for p, v in zip(files, val) if not v], body, stride, seed=seed, progress=progress)
-    test = load_body_frames([p for p, v in zip(files, val) if v], body, stride, seed=seed + 1, progress=progress)
-    return train, test, held_out
+    return train, held_out_frames(motion_dir, body, held_out, stride, seed, progress), held_out
+
+
+def held_out_frames(motion_dir, body: BodyModel, subjects, stride: int = 4, seed: int = 0, progress=None) -> BodyFrames:
+    """The frames of the takes of ``subjects`` in ``motion_dir``, as :func:`split_frames` evaluates
+    a model trained with ``seed`` (the shapes drawn with ``seed + 1``)."""
+    files = [p for p in take_files(motion_dir) if take_subject(p) in set(subjects)]
+    return load_body_frames(files, body, stride, seed=seed + 1, progress=progress)
+
+
+def ablation(motion_dir, body: BodyModel, variants=VARIANTS, views=(1, 2, 3), samples: int = 1000, seed: int = 0) -> list[dict]:
+    """:func:`evaluate_fusion` of the shipped weights of every variant with every number of views,
+    on the held-out subjects of the full model's file: one row per (variant, views) with its scores."""
+    regressors = {v: load_default_fusion_regressor(v) for v in variants}
+    info = regressors[variants[0]].info
+    frames = held_out_frames(motion_dir, body, info["val_subjects"], info["stride"], info["seed"])
+    return [
+        {"variant": variant, "views": n, **evaluate_fusion(regressor, frames, body, samples=samples, views=n, seed=seed)}
+        for n in views
+        for variant, regressor in regressors.items()
+    ]
 
 
 def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
