@@ -82,6 +82,55 @@ def cmd_run_aircap(args) -> None:
     print(f"wrote {args.out}")
 
 
+def _graph_options(args):
+    from mocapgraph.pipelines.uncalibrated import GraphOptions
+
+    return GraphOptions(gm_sigma_px=args.gm_sigma_px, shape=args.shape, pose_prior=args.pose_prior)
+
+
+def cmd_run_airpose(args) -> None:
+    from mocapgraph.pipelines.airpose import AirposeOptions, run_airpose_command
+
+    options = AirposeOptions(
+        initialiser=args.initialiser, refine=not args.initialiser_only, min_confidence=args.min_confidence,
+        detectors=tuple(args.detectors.split(",")) if args.detectors else None,
+        covariances=not args.no_covariances, progress=not args.quiet, graph=_graph_options(args),
+    )  # fmt: skip
+    run_airpose_command(args.capture, args.out, options, overwrite=args.overwrite)
+    print(f"wrote {args.out}")
+
+
+def cmd_run_smartmocap(args) -> None:
+    from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap_command
+
+    options = SmartmocapOptions(
+        initialiser=args.initialiser, motion_prior=args.motion_prior, executor=args.executor, workers=args.workers,
+        address=args.address, detectors=tuple(args.detectors.split(",")) if args.detectors else None,
+        covariances=not args.no_covariances, progress=not args.quiet, graph=_graph_options(args),
+    )  # fmt: skip
+    run_smartmocap_command(args.capture, args.out, options, overwrite=args.overwrite)
+    print(f"wrote {args.out}")
+
+
+def _add_uncalibrated_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("capture", type=Path, help="capture directory")
+    parser.add_argument("--out", type=Path, required=True, help="result directory to write")
+    parser.add_argument(
+        "--initialiser", choices=("auto", "regressor", "pnp"), default="auto",
+        help="body relative to each camera from the fusion regressor, PnP of the mean body, or auto: the regressor if its weights load (default)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--shape", choices=("hold", "estimate"), default="hold",
+        help="hold the initial body shape during the solve (default: the body's size is the only scale) or estimate it",
+    )  # fmt: skip
+    parser.add_argument("--pose-prior", choices=("gmm", "none"), default="gmm", help="learned pose prior on every state (default gmm)")
+    parser.add_argument("--detectors", help="comma-separated detector names (default: all)")
+    parser.add_argument("--gm-sigma-px", type=float, default=40.0, help="Geman-McClure scale in pixels (default 40)")
+    parser.add_argument("--no-covariances", action="store_true", help="skip the marginal covariances")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing result")
+
+
 def cmd_eval(args) -> None:
     from mocapgraph.data_tools.capture import load_capture
     from mocapgraph.data_tools.evaluation import evaluate
@@ -142,6 +191,18 @@ def cmd_bench_aircap(args) -> None:
     print(json.dumps(bench_aircap(duration_s=args.duration, seed=args.seed)))
 
 
+def cmd_bench_smartmocap(args) -> None:
+    from mocapgraph.pipelines.bench_smartmocap import bench_smartmocap
+
+    print(json.dumps(bench_smartmocap(duration_s=args.duration, seed=args.seed, workers=args.workers)))
+
+
+def cmd_bench_airpose(args) -> None:
+    from mocapgraph.pipelines.bench_airpose import bench_airpose
+
+    print(json.dumps(bench_airpose(duration_s=args.duration, seed=args.seed)))
+
+
 def cmd_bench_priors(args) -> None:
     from mocapgraph.pipelines.bench_priors import bench_priors
 
@@ -151,7 +212,7 @@ def cmd_bench_priors(args) -> None:
 def cmd_demo(args) -> None:
     from mocapgraph.pipelines.demo import run_demo
 
-    path = run_demo(args.out, args.motion_dir, duration_s=args.duration)
+    path = run_demo(args.out, args.motion_dir, duration_s=args.duration, phones_duration_s=args.phones_duration)
     print(f"wrote {path.resolve()}")
 
 
@@ -237,6 +298,17 @@ def build_parser() -> argparse.ArgumentParser:
     bench_aircap.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     bench_aircap.add_argument("--json", action="store_true", help="print one JSON object (always on)")
     bench_aircap.set_defaults(func=cmd_bench_aircap)
+    bench_smartmocap = bench.add_parser("smartmocap", help="SmartMocap on a rich capture: camera configurations, with and without the motion prior")
+    bench_smartmocap.add_argument("--duration", type=float, default=10.0, help="seconds of capture (default 10)")
+    bench_smartmocap.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    bench_smartmocap.add_argument("--workers", type=int, default=2, help="parallel chunks (default 2)")
+    bench_smartmocap.add_argument("--json", action="store_true", help="print one JSON object (always on)")
+    bench_smartmocap.set_defaults(func=cmd_bench_smartmocap)
+    bench_airpose = bench.add_parser("airpose", help="AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)")
+    bench_airpose.add_argument("--duration", type=float, default=10.0, help="seconds of capture (default 10)")
+    bench_airpose.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    bench_airpose.add_argument("--json", action="store_true", help="print one JSON object (always on)")
+    bench_airpose.set_defaults(func=cmd_bench_airpose)
     bench_priors = bench.add_parser("priors", help="the shipped learned priors on held-out CMU subjects and on aircap, one JSON object")
     bench_priors.add_argument("--motion", type=Path, metavar="DIR", help="CMU motion directory (default ../shared/motion/cmu_train)")
     bench_priors.add_argument("--duration", type=float, default=10.0, help="seconds of the aircap capture (default 10)")
@@ -306,6 +378,18 @@ def build_parser() -> argparse.ArgumentParser:
     aircap.add_argument("--quiet", action="store_true", help="no progress on stderr")
     aircap.add_argument("--overwrite", action="store_true", help="replace an existing result")
     aircap.set_defaults(func=cmd_run_aircap)
+    airpose = run.add_parser("airpose", help="uncalibrated moving cameras: body and cameras relative to camera 1 (AirPose+)")
+    _add_uncalibrated_args(airpose)
+    airpose.add_argument("--initialiser-only", action="store_true", help="AirPose: the initialiser's estimate, no bundle adjustment")
+    airpose.add_argument("--min-confidence", type=float, default=3.0, help="summed keypoint confidence a frame needs (default 3)")
+    airpose.set_defaults(func=cmd_run_airpose)
+    smartmocap = run.add_parser("smartmocap", help="static and moving uncalibrated cameras in the ground plane's frame (SmartMocap)")
+    _add_uncalibrated_args(smartmocap)
+    smartmocap.add_argument("--motion-prior", choices=("vae", "none"), default="vae", help="SmartMocap's motion prior (default vae)")
+    smartmocap.add_argument("--executor", choices=("local", "ray"), default="local", help="where chunks run: local processes (default) or Ray")
+    smartmocap.add_argument("--address", help="Ray cluster address (default: start a local Ray instance)")
+    smartmocap.add_argument("--workers", type=int, default=2, help="parallel chunks (default 2)")
+    smartmocap.set_defaults(func=cmd_run_smartmocap)
 
     evaluate = sub.add_parser("eval", help="score a result against its capture's ground truth")
     evaluate.add_argument("result", type=Path, help="result directory")
@@ -374,10 +458,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_body_args(train_fusion)
     train_fusion.set_defaults(func=cmd_priors_train_fusion)
 
-    demo = sub.add_parser("demo", help="pose the default body and draw it (grows with the pipelines)")
+    demo = sub.add_parser("demo", help="AirCap and SmartMocap on embedded synthetic captures, reports, and the body model drawn")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
     demo.add_argument("--motion-dir", type=Path, help="CMU motion directory (default ../shared/motion/cmu_train)")
     demo.add_argument("--duration", type=float, default=8.0, help="seconds of the synthetic aircap capture (default 8)")
+    demo.add_argument("--phones-duration", type=float, default=6.0, help="seconds of the uncalibrated phones capture (default 6)")
     demo.set_defaults(func=cmd_demo)
     return parser
 
