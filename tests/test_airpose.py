@@ -42,6 +42,13 @@ def test_airpose_plus_improves_on_the_initialiser(both, capture):
     assert camera2_position_error_m(plus, capture) < 1.5  # camera 2 is about 12 m away
 
 
+def test_regressor_initialiser_then_airpose_plus(capture):
+    """AirPose's own initialiser (the fusion regressor) also converges under AirPose+."""
+    result, m = run(capture, initialiser="regressor", covariances=False)
+    assert result.parameters["initialiser_used"].startswith("regressor")
+    assert m["pa_mpjpe_m"] < 0.04 and camera2_position_error_m(result, capture) < 1.5
+
+
 def test_camera_one_is_the_identity_and_carries_no_covariance(both, capture):
     _, (plus, _) = both
     c1, c2 = (c.name for c in capture.cameras)

@@ -10,7 +10,6 @@ from scipy.spatial.transform import Rotation
 from mocapgraph.body import load_body_model
 from mocapgraph.data_tools.camera_model import project_points
 from mocapgraph.graphs.initialisation import (
-    ViewBodies,
     fuse_bodies,
     ground_frame,
     neutral_pose,
@@ -18,6 +17,7 @@ from mocapgraph.graphs.initialisation import (
     relative_cameras,
     robust_pose_mean,
 )
+from mocapgraph.priors.fusion_regressor import ViewEstimate
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +58,7 @@ def scene(T=20, seed=0):
 def views_from(roots, cams, valid=None):
     T = len(roots)
     return [
-        ViewBodies(np.linalg.inv(c) @ roots, np.zeros((T, 21, 3)), np.full((T, 6), 0.5), np.ones(T, bool) if valid is None else valid[k])
+        ViewEstimate(np.linalg.inv(c) @ roots, np.zeros((T, 21, 3)), np.full((T, 6), 0.5), np.ones(T, bool) if valid is None else valid[k])
         for k, c in enumerate(cams)
     ]
 
@@ -118,7 +118,7 @@ def test_ground_plane_under_the_feet(body, walking):
         roots[t, :3, :3] = tilt @ upright
         roots[t, :3, 3] = tilt @ [x, y, sole]
     cam = camera([0.5, -6.0, 2.0])
-    bodies = ViewBodies(np.linalg.inv(cam) @ roots, pose, np.repeat(shape[None], T, 0), np.ones(T, bool))
+    bodies = ViewEstimate(np.linalg.inv(cam) @ roots, pose, np.repeat(shape[None], T, 0), np.ones(T, bool))
     g = ground_frame(body, bodies, shape)
     normal_world = cam[:3, :3] @ g.ref_T_world[:3, 2]
     assert g.from_feet == walking

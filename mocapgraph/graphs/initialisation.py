@@ -1,8 +1,9 @@
 """Initial values for uncalibrated captures: the person as the calibration target.
 
-Each view gives the body relative to its own camera (``camera_T_root``): from the fusion
-regressor (:mod:`mocapgraph.priors.fusion_regressor`) or, as a fallback that needs no network,
-from a PnP of the mean body to the view's keypoints (:func:`pnp_view`). Two views seeing the
+Each view gives the body relative to its own camera (a
+:class:`~mocapgraph.priors.fusion_regressor.ViewEstimate`): from the fusion regressor
+(:mod:`mocapgraph.priors.fusion_regressor`) or, as a fallback that needs no network, from a PnP
+of the mean body to the view's keypoints (:func:`pnp_view`). Two views seeing the
 same body at the same instant then give the pose of one camera relative to the other,
 ``ref_T_c = ref_T_root · (c_T_root)⁻¹`` (:func:`relative_cameras`). A static camera's pose is
 the robust mean of these over the frames; a moving camera's is taken per frame.
@@ -23,33 +24,16 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mocapgraph.body.keypoint_formats import COCO17, get_format
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.triangulation import triangulate_points
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.priors.fusion_regressor import ViewEstimate
 
 MIN_POINTS = 6
 """Confident keypoints a view needs at a frame to place the body (PnP needs at least 4; 6
 keeps it off the degenerate, nearly planar configurations of a torso alone)."""
 MIN_CONFIDENCE = 0.3
-
-
-@dataclass
-class ViewBodies:
-    """The body as one camera sees it, per synchronised frame.
-
-    Attributes:
-        camera_T_root: ``(T, 4, 4)`` the root (pelvis) in the camera's OpenCV frame, metres.
-        pose: ``(T, 21, 3)`` local axis-angle, radians.
-        shape: ``(T, S)`` body shape.
-        valid: ``(T,)`` whether the view saw enough of the body at that frame.
-    """
-
-    camera_T_root: np.ndarray
-    pose: np.ndarray
-    shape: np.ndarray
-    valid: np.ndarray
 
 
 def neutral_pose() -> np.ndarray:
@@ -66,23 +50,24 @@ def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
-def pnp_view(body: BodyModel, keypoints: np.ndarray, fmt: str, K: np.ndarray, shape=None) -> ViewBodies:
-    """The mean body (``shape``, default the average; arms down) placed in one view by PnP.
+def pnp_view(body: BodyModel, keypoints: np.ndarray, fmt: str, K: np.ndarray, shape=None, pose=None) -> ViewEstimate:
+    """A body placed in one view by PnP: the mean body (arms down) by default, or the body of
+    ``shape (S,)`` in ``pose (T, 21, 3)`` per frame (e.g. a regressor's articulated estimate).
 
     Args:
         keypoints: ``(T, F, 3)`` undistorted pixels and confidences of format ``fmt``, NaN where missing.
         K: ``(3, 3)`` intrinsics of the (undistorted) image.
 
     Each frame with at least :data:`MIN_POINTS` confident mapped points gets ``camera_T_root``
-    from OpenCV's SQPnP (globally optimal for the mean body's points) polished by Levenberg-
+    from OpenCV's SQPnP (globally optimal for the model's points) polished by Levenberg-
     Marquardt; others are invalid (identity). A solution with the body behind the camera or
     implausibly far (> 200 m) is invalid too.
     """
-    shape = body.default_shape if shape is None else np.asarray(shape, dtype=float)
-    table = body.table(shape, fmt)
-    model = body.forward(shape, np.eye(4)[None], neutral_pose()[None], keypoints=fmt).keypoints[0]
-    mapped = np.asarray(table.mapped, dtype=bool)
     T = len(keypoints)
+    shape = body.default_shape if shape is None else np.asarray(shape, dtype=float)
+    pose = np.repeat(neutral_pose()[None], T, axis=0) if pose is None else np.asarray(pose, dtype=float)
+    model = body.forward(shape, np.tile(np.eye(4), (T, 1, 1)), pose, keypoints=fmt).keypoints
+    mapped = np.asarray(body.table(shape, fmt).mapped, dtype=bool)
     out = np.tile(np.eye(4), (T, 1, 1))
     valid = np.zeros(T, dtype=bool)
     Kf = np.asarray(K, dtype=float)
@@ -91,7 +76,7 @@ def pnp_view(body: BodyModel, keypoints: np.ndarray, fmt: str, K: np.ndarray, sh
         use = mapped & (conf >= MIN_CONFIDENCE) & np.isfinite(keypoints[t, :, :2]).all(-1)
         if use.sum() < MIN_POINTS:
             continue
-        obj, img = model[use].astype(np.float64), keypoints[t, use, :2].astype(np.float64)
+        obj, img = model[t, use].astype(np.float64), keypoints[t, use, :2].astype(np.float64)
         ok, rvec, tvec = cv2.solvePnP(obj, img, Kf, None, flags=cv2.SOLVEPNP_SQPNP)
         if not ok:
             continue
@@ -101,8 +86,7 @@ def pnp_view(body: BodyModel, keypoints: np.ndarray, fmt: str, K: np.ndarray, sh
             continue
         out[t] = _rigid(cv2.Rodrigues(rvec)[0], tvec[:, 0])
         valid[t] = True
-    pose = np.repeat(neutral_pose()[None], T, axis=0)
-    return ViewBodies(out, pose, np.repeat(shape[None], T, axis=0), valid)
+    return ViewEstimate(out, pose, np.repeat(shape[None], T, axis=0), valid)
 
 
 def rotation_mean(R: np.ndarray, weights=None) -> np.ndarray:
@@ -133,7 +117,7 @@ def robust_pose_mean(poses: np.ndarray) -> np.ndarray:
     return _rigid(rotation_mean(poses[inlier, :3, :3]), t[inlier].mean(axis=0))
 
 
-def relative_cameras(views: list[ViewBodies], moving: list[bool], reference: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def relative_cameras(views: list[ViewEstimate], moving: list[bool], reference: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Every camera's pose in the reference camera's frame, from the body both see.
 
     Args:
@@ -198,13 +182,6 @@ def _fill_gaps(poses: np.ndarray, known: np.ndarray) -> np.ndarray:
     return out
 
 
-def coco_points(keypoints: np.ndarray, fmt: str) -> np.ndarray:
-    """``(..., 17, 3)``: the COCO-17 points of keypoints ``(..., F, 3)`` of format ``fmt`` (every
-    registered format names them all), so that views with different detectors can be triangulated."""
-    names = get_format(fmt).names
-    return keypoints[..., [names.index(n) for n in COCO17], :]
-
-
 def moving_cameras_from_static(
     keypoints: list[np.ndarray | None], Ks: list[np.ndarray], ref_T_c: np.ndarray, known: np.ndarray, moving: list[bool]
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -251,7 +228,7 @@ def moving_cameras_from_static(
     return out, ok
 
 
-def fuse_bodies(views: list[ViewBodies], ref_T_c: np.ndarray, known: np.ndarray) -> ViewBodies:
+def fuse_bodies(views: list[ViewEstimate], ref_T_c: np.ndarray, known: np.ndarray) -> ViewEstimate:
     """One body per frame in the reference camera's frame: the views that saw it, each moved
     into the reference frame, averaged (chordal mean of the roots' rotations, mean position;
     mean joint rotation vectors and shape). Frames no view saw are filled from their neighbours."""
@@ -275,7 +252,7 @@ def fuse_bodies(views: list[ViewBodies], ref_T_c: np.ndarray, known: np.ndarray)
     frames = np.flatnonzero(seen)
     nearest = frames[np.abs(np.arange(T)[:, None] - frames[None, :]).argmin(axis=1)]
     pose[~seen], shape[~seen] = pose[nearest[~seen]], shape[nearest[~seen]]
-    return ViewBodies(root, pose, shape, seen)
+    return ViewEstimate(root, pose, shape, seen)
 
 
 @dataclass
@@ -299,7 +276,7 @@ MIN_FOOT_SPREAD_M = 0.5
 """The feet's second-largest horizontal spread (std, metres) above which they tilt the plane."""
 
 
-def ground_frame(body: BodyModel, bodies: ViewBodies, shape) -> GroundEstimate:
+def ground_frame(body: BodyModel, bodies: ViewEstimate, shape) -> GroundEstimate:
     """The ground plane under the body's feet (``bodies`` in the reference camera's frame)."""
     fk = body.forward(shape, bodies.camera_T_root, bodies.pose, keypoints="body")
     feet = [BODY_KEYPOINT_NAMES.index(n) for n in ("left_big_toe", "right_big_toe", "left_heel", "right_heel", "left_ankle", "right_ankle")]

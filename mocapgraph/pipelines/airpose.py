@@ -36,6 +36,7 @@ from mocapgraph.pipelines.uncalibrated import (
     GraphOptions,
     Rig,
     RigGraph,
+    INITIALISERS,
     add_covariances,
     held_shape,
     hold,
@@ -46,14 +47,15 @@ from mocapgraph.pipelines.uncalibrated import (
     view_bodies,
 )
 
-INITIALISERS = ("auto", "regressor", "pnp")
 
 
 @dataclass
 class AirposeOptions:
     """Parameters of AirPose / AirPose+ (units in the names)."""
 
-    initialiser: str = "auto"
+    # The mean body's PnP: as a starting point it beat the fusion regressor (whose root is ~17°
+    # off per view) on airpose, before and after the bundle adjustment (bench airpose).
+    initialiser: str = "pnp"
     regressor_variant: str = "full"  # the regressor's ablation variants: "no_exchange", "no_crop"
     refine: bool = True  # AirPose+ (False: the initialiser's estimate alone)
     min_confidence: float = 3.0  # summed keypoint confidence over the views a frame needs

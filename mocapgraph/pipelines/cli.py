@@ -116,8 +116,8 @@ def _add_uncalibrated_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("capture", type=Path, help="capture directory")
     parser.add_argument("--out", type=Path, required=True, help="result directory to write")
     parser.add_argument(
-        "--initialiser", choices=("auto", "regressor", "pnp"), default="auto",
-        help="body relative to each camera from the fusion regressor, PnP of the mean body, or auto: the regressor if its weights load (default)",
+        "--initialiser", choices=("pnp", "regressor"), default="pnp",
+        help="body relative to each camera: PnP of the mean body (default), or the fusion regressor (PnP for a view where they disagree)",
     )  # fmt: skip
     parser.add_argument(
         "--shape", choices=("hold", "estimate"), default="hold",

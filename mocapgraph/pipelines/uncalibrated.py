@@ -37,11 +37,12 @@ from mocapgraph.factors.priors import (
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import frame_groups
-from mocapgraph.graphs.initialisation import ViewBodies, coco_points, pnp_view
+from mocapgraph.graphs.initialisation import pnp_view
 from mocapgraph.graphs.keys import camera_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions
 from mocapgraph.graphs.uncertainty import joint_covariances
 from mocapgraph.priors import load_default_pose_gmm, pose_gmm_factor
+from mocapgraph.priors.fusion_regressor import ViewEstimate, ViewInput, coco_keypoints, load_default_fusion_regressor
 from mocapgraph.priors.motion_windows import WINDOW
 
 POSE_PRIORS = ("gmm", "none")
@@ -113,7 +114,7 @@ class Rig:
         if not any(o.camera == c for obs in self.states for o in obs):
             return None
         keypoints, fmt = self.view_keypoints(c)
-        return coco_points(keypoints, fmt)
+        return coco_keypoints(keypoints, fmt)
 
     def camera_matrices(self) -> list[np.ndarray]:
         """Per camera, ``K (3, 3)`` of its undistorted image."""
@@ -160,45 +161,41 @@ def rig_from_capture(capture: Capture, detectors: tuple[str, ...] | None = None,
     return Rig(names, [c.moving for c in capture.cameras], intrinsics, np.array([g.time for g in groups]), frames, states, reference)
 
 
+INITIALISERS = ("pnp", "regressor")
 DISAGREEMENT = 0.5
 """Median relative difference of the body's depth between the regressor and the PnP of the mean
-body above which ``"auto"`` trusts the PnP for that view: the regressor was trained on synthetic
-views and can be far off on a view unlike them, while PnP is only as wrong as the mean body."""
+body above which the regressor's view is replaced by the PnP: the network was trained on
+synthetic views and can be far off on one unlike them, while PnP is only as wrong as the mean body."""
 
 
-def view_bodies(rig: Rig, body: BodyModel, initialiser: str, variant: str = "full") -> tuple[list[ViewBodies], str]:
-    """Per camera, the body relative to it at every state, from ``initialiser``: ``"regressor"``
-    (the shipped fusion regressor, ``variant`` of its ablation), ``"pnp"`` (the mean body by
-    PnP), or ``"auto"`` (the regressor, with PnP for a view where the two disagree by more than
-    :data:`DISAGREEMENT` and for all views when its weights cannot be loaded). Returns the views
-    and a description of what was used."""
+def view_bodies(rig: Rig, body: BodyModel, initialiser: str, variant: str = "full") -> tuple[list[ViewEstimate], str]:
+    """Per camera, the body relative to it at every state, from ``initialiser``:
+
+    - ``"pnp"``: the mean body (arms down) placed by PnP, the geometric initialiser;
+    - ``"regressor"``: the fusion regressor (``variant`` of its ablation), AirPose's initialiser,
+      with the PnP for a view where the two disagree by more than :data:`DISAGREEMENT` in depth.
+
+    Returns the views and a description of what was used."""
+    if initialiser not in INITIALISERS:
+        raise MocapgraphError(f"initialiser {initialiser!r}: choose one of {', '.join(INITIALISERS)}")
     kps = [rig.view_keypoints(c) if any(o.camera == c for obs in rig.states for o in obs) else None for c in range(rig.num_cameras)]
     N = len(rig.states)
     K = rig.camera_matrices()
-    empty = ViewBodies(np.tile(np.eye(4), (N, 1, 1)), np.zeros((N, NUM_JOINTS - 1, 3)), np.tile(body.default_shape, (N, 1)), np.zeros(N, bool))
-    pnp = [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)] if initialiser != "regressor" else None
+    empty = ViewEstimate(np.tile(np.eye(4), (N, 1, 1)), np.zeros((N, NUM_JOINTS - 1, 3)), np.tile(body.default_shape, (N, 1)), np.zeros(N, bool))
+    pnp = [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)]
     if initialiser == "pnp":
         return pnp, "pnp"
-    try:
-        from mocapgraph.priors.fusion_regressor import ViewInput, load_default_fusion_regressor
-
-        regressor = load_default_fusion_regressor(variant)
-    except MocapgraphError as exc:
-        if initialiser == "regressor":
-            raise MocapgraphError(f"initialiser 'regressor': {exc}") from None
-        return pnp, "pnp (the fusion regressor could not be loaded)"
+    regressor = load_default_fusion_regressor(variant)
     seen = [c for c in range(rig.num_cameras) if kps[c] is not None]
-    predicted = regressor.predict([ViewInput(kps[c][0], kps[c][1], K[c]) for c in seen])
-    out = [empty] * rig.num_cameras
+    out = list(pnp)
     fallback = []
-    for c, p in zip(seen, predicted):
-        out[c] = ViewBodies(p.camera_T_root, p.pose, p.shape, p.valid)
-        if pnp is not None:
-            both = p.valid & pnp[c].valid
-            depth_pnp = pnp[c].camera_T_root[both, 2, 3]
-            if both.any() and np.median(np.abs(p.camera_T_root[both, 2, 3] - depth_pnp) / depth_pnp) > DISAGREEMENT:
-                out[c] = pnp[c]
-                fallback.append(rig.names[c])
+    for c, p in zip(seen, regressor.predict([ViewInput(kps[c][0], kps[c][1], K[c]) for c in seen])):
+        both = p.valid & pnp[c].valid
+        depth = pnp[c].camera_T_root[both, 2, 3]
+        if both.any() and np.median(np.abs(p.camera_T_root[both, 2, 3] - depth) / depth) > DISAGREEMENT:
+            fallback.append(rig.names[c])
+        else:
+            out[c] = p
     used = "regressor" if variant == "full" else f"regressor ({variant})"
     return out, used + (f"; PnP for {', '.join(fallback)} (the two disagreed)" if fallback else "")
 
