@@ -53,7 +53,8 @@ from mocapgraph.graphs.keys import (
     root_key,
     shape_key,
 )
-from mocapgraph.graphs.solver import SolverOptions, solve_staged
+from mocapgraph.graphs.shape_bounds import shape_projection
+from mocapgraph.graphs.solver import annealed_stages, solve_staged
 from mocapgraph.graphs.uncertainty import joint_covariances
 from mocapgraph.priors import PoseGMM, load_default_pose_gmm, pose_gmm_factor
 from mocapgraph.priors.motion_factor import MotionVAEPrior
@@ -366,29 +367,12 @@ class _Problem:
         return order + sorted(k for k in values.keys() if k not in listed)
 
     def stages(self, iterations: int, ordering: str | list[int] = "colamd") -> list:
-        """L2 until the cost settles, then Geman-McClure: robust costs from a poor start stall.
-
-        λ starts at 1: the body's rotations make the first steps far from linear, and a small
-        initial damping spent most solves on rejected steps (39 solves against 19, measured).
-        """
-        def stage(rel_tol: float) -> SolverOptions:
-            return SolverOptions(max_iterations=iterations, relative_tolerance=rel_tol, initial_lambda=1.0, ordering=ordering)
-
-        return [
-            ("l2", lambda: setattr(self.scale, "sigma_px", np.inf), stage(1e-2)),
-            ("geman-mcclure", lambda: setattr(self.scale, "sigma_px", self.options.gm_sigma_px), stage(1e-3)),
-        ]
+        """L2, then Geman-McClure at the options' scale (:func:`~mocapgraph.graphs.solver.annealed_stages`)."""
+        return annealed_stages(self.scale, self.options.gm_sigma_px, iterations, ordering)
 
     def project_shape(self, values: gtsam.Values) -> gtsam.Values:
         """Clamp the shape into the body model's bounds after each accepted step."""
-        lo, hi = self.body.shape_bounds.T
-        shape = values.atVector(shape_key())
-        clamped = np.clip(shape, lo + 1e-9, hi - 1e-9)
-        if np.array_equal(clamped, shape):
-            return values
-        out = gtsam.Values(values)
-        out.update(shape_key(), clamped)
-        return out
+        return shape_projection(self.body)(values)
 
 
 # ---------------------------------------------------------------------------------------------

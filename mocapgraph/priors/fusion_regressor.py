@@ -44,7 +44,7 @@ from mocapgraph.body.keypoint_formats import COCO17, get_format
 from mocapgraph.body.rotations import matrix_to_rotvec
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.model_file import load_weights, read_model_file, weight_arrays, write_model_file
-from mocapgraph.priors.pose_vae import sixd_to_rotmat
+from mocapgraph.priors.pose_vae import _mlp, sixd_to_rotmat
 
 FORMAT_VERSION = 1
 _KEYS = ("format_version", "body_model", "variant", "shape_bounds", "config", "info")
@@ -141,14 +141,6 @@ def crop_features(keypoints, K) -> tuple[np.ndarray, np.ndarray]:
         [normalised.reshape(kp.shape[:-2] + (2 * POINTS,)), np.where(present, kp[..., 2], 0.0), present.astype(float), crop], axis=-1
     )  # fmt: skip
     return np.where(boxed[..., None], features, 0.0), count >= MIN_POINTS
-
-
-def _mlp(inputs: int, width: int, outputs: int) -> torch.nn.Sequential:
-    return torch.nn.Sequential(
-        torch.nn.Linear(inputs, width), torch.nn.GELU(),
-        torch.nn.Linear(width, width), torch.nn.GELU(),
-        torch.nn.Linear(width, outputs),
-    )  # fmt: skip
 
 
 class FusionNet(torch.nn.Module):
