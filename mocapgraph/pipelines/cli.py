@@ -112,7 +112,7 @@ def cmd_run_smartmocap(args) -> None:
     print(f"wrote {args.out}")
 
 
-def _add_uncalibrated_args(parser: argparse.ArgumentParser) -> None:
+def _add_uncalibrated_args(parser: argparse.ArgumentParser, shape: str) -> None:
     parser.add_argument("capture", type=Path, help="capture directory")
     parser.add_argument("--out", type=Path, required=True, help="result directory to write")
     parser.add_argument(
@@ -120,8 +120,8 @@ def _add_uncalibrated_args(parser: argparse.ArgumentParser) -> None:
         help="body relative to each camera: PnP of the mean body (default), or the fusion regressor (PnP for a view where they disagree)",
     )  # fmt: skip
     parser.add_argument(
-        "--shape", choices=("hold", "estimate"), default="hold",
-        help="hold the initial body shape during the solve (default: the body's size is the only scale) or estimate it",
+        "--shape", choices=("hold", "estimate"), default=shape,
+        help=f"hold the initial body shape during the solve (the body's size is the only scale) or estimate it (default {shape})",
     )  # fmt: skip
     parser.add_argument("--pose-prior", choices=("gmm", "none"), default="gmm", help="learned pose prior on every state (default gmm)")
     parser.add_argument("--detectors", help="comma-separated detector names (default: all)")
@@ -379,12 +379,12 @@ def build_parser() -> argparse.ArgumentParser:
     aircap.add_argument("--overwrite", action="store_true", help="replace an existing result")
     aircap.set_defaults(func=cmd_run_aircap)
     airpose = run.add_parser("airpose", help="uncalibrated moving cameras: body and cameras relative to camera 1 (AirPose+)")
-    _add_uncalibrated_args(airpose)
+    _add_uncalibrated_args(airpose, shape="hold")
     airpose.add_argument("--initialiser-only", action="store_true", help="AirPose: the initialiser's estimate, no bundle adjustment")
     airpose.add_argument("--min-confidence", type=float, default=3.0, help="summed keypoint confidence a frame needs (default 3)")
     airpose.set_defaults(func=cmd_run_airpose)
     smartmocap = run.add_parser("smartmocap", help="static and moving uncalibrated cameras in the ground plane's frame (SmartMocap)")
-    _add_uncalibrated_args(smartmocap)
+    _add_uncalibrated_args(smartmocap, shape="estimate")
     smartmocap.add_argument("--motion-prior", choices=("vae", "none"), default="vae", help="SmartMocap's motion prior (default vae)")
     smartmocap.add_argument("--executor", choices=("local", "ray"), default="local", help="where chunks run: local processes (default) or Ray")
     smartmocap.add_argument("--address", help="Ray cluster address (default: start a local Ray instance)")
