@@ -157,3 +157,20 @@ def test_no_detections_is_one_clear_error(capture):
     cams = [replace(c, detectors={}) for c in capture.cameras]
     with pytest.raises(MocapgraphError, match="no camera has detections"):
         run(replace(capture, cameras=cams))
+
+
+def test_command_line(tmp_path, capsys):
+    from mocapgraph.data_tools.capture import write_capture
+    from mocapgraph.data_tools.result import load_result
+    from mocapgraph.pipelines.cli import main
+
+    cap_dir = write_capture(synthesize("rich", seed=3, duration_s=1.0), tmp_path / "cap")
+    args = ["run", "smartmocap", str(cap_dir), "--out", str(tmp_path / "res"), "--motion-prior", "none", "--workers", "1", "--quiet", "--no-covariances"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "smartmocap: 31 body states, 8 cameras, 1 chunks" in out and "note: absolute scale" in out
+    assert load_result(tmp_path / "res").world_frame == "ground_plane"
+    assert main(["eval", str(tmp_path / "res")]) == 0
+    assert "similarity" in capsys.readouterr().out
+    assert main(args) == 2  # the result exists: refused without --overwrite
+    assert "exists" in capsys.readouterr().err
