@@ -65,7 +65,7 @@ class SmartmocapOptions:
     initialiser: str = "pnp"
     motion_prior: str = "vae"
     chunk_size: int = WINDOW
-    chunk_iterations: int = 5
+    chunk_iterations: int = 3  # per stage and phase: the chunks only warm-start the final pass
     final_iterations: int = 30
     executor: str = "local"
     workers: int = 2
