@@ -49,6 +49,15 @@ def test_regressor_initialiser_then_airpose_plus(capture):
     assert m["pa_mpjpe_m"] < 0.04 and camera2_position_error_m(result, capture) < 1.5
 
 
+def test_missing_regressor_weights_fall_back_to_pnp(capture, monkeypatch):
+    import mocapgraph.priors.fusion_regressor as fr
+
+    monkeypatch.setattr(fr, "DATA_DIR", fr.DATA_DIR / "nowhere")
+    result, m = run(capture, initialiser="regressor", refine=False, covariances=False)
+    assert result.parameters["initialiser_used"].startswith("pnp (the fusion regressor could not be loaded")
+    assert "fusion_regressor.npz" in result.parameters["initialiser_used"]
+
+
 def test_camera_one_is_the_identity_and_carries_no_covariance(both, capture):
     _, (plus, _) = both
     c1, c2 = (c.name for c in capture.cameras)

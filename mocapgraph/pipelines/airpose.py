@@ -109,8 +109,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     if sum(placed) == 1:
         notes.append("camera 1 alone: depth along its rays rests on the body's size and the priors; expect large covariances along them")
     notes.append("absolute scale: from the body model's size (shape prior) alone; the shape's covariance carries it")
-    rig = Rig(rig.names, rig.moving, rig.intrinsics, rig.times, np.where(np.array(placed)[:, None], rig.frames, -1),
-              [[o for o in obs if placed[o.camera]] for obs in rig.states], 0)  # fmt: skip
+    rig = rig.only(placed)
     fused = fuse_bodies(views, ref_T_c, known)
     lo, hi = body.shape_bounds.T
     shape = np.clip(fused.shape[fused.valid].mean(axis=0), lo + 1e-6, hi - 1e-6)

@@ -320,7 +320,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     for c, name in enumerate(rig.names):
         if not placed[c]:
             notes.append(f"camera {name}: never saw the person together with the reference camera {rig.names[rig.reference]}; not estimated")
-    rig = _without(rig, placed)
+    rig = rig.only(placed)
     notes += _degeneracy_notes(rig, placed)
     for note in notes:
         say(note)
@@ -351,13 +351,6 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes
     )
     return result
-
-
-def _without(rig: Rig, placed: list[bool]) -> Rig:
-    """The rig without the observations of cameras that could not be placed."""
-    states = [[o for o in obs if placed[o.camera]] for obs in rig.states]
-    frames = np.where(np.array(placed)[:, None], rig.frames, -1)
-    return Rig(rig.names, rig.moving, rig.intrinsics, rig.times, frames, states, rig.reference)
 
 
 def run_smartmocap_command(capture_path: Path, out: Path, options: SmartmocapOptions, overwrite: bool = False) -> Result:

@@ -121,6 +121,12 @@ class Rig:
         """Per camera, ``K (3, 3)`` of its undistorted image."""
         return [np.array([[f[0], 0, f[2]], [0, f[1], f[3]], [0, 0, 1.0]]) for f in self.intrinsics]
 
+    def only(self, cameras: list[bool]) -> Rig:
+        """The rig without the frames and observations of the cameras not in ``cameras`` (per camera)."""
+        keep = np.asarray(cameras, dtype=bool)
+        states = [[o for o in obs if keep[o.camera]] for obs in self.states]
+        return Rig(self.names, self.moving, self.intrinsics, self.times, np.where(keep[:, None], self.frames, -1), states, self.reference)
+
     def subset(self, start: int, stop: int) -> Rig:
         """The states ``[start, stop)`` (frames and observations keep their camera frame indices)."""
         return Rig(
@@ -174,7 +180,8 @@ def view_bodies(rig: Rig, body: BodyModel, initialiser: str, variant: str = "ful
 
     - ``"pnp"``: the mean body (arms down) placed by PnP, the geometric initialiser;
     - ``"regressor"``: the fusion regressor (``variant`` of its ablation), AirPose's initialiser,
-      with the PnP for a view where the two disagree by more than :data:`DISAGREEMENT` in depth.
+      with the PnP for a view where the two disagree by more than :data:`DISAGREEMENT` in depth,
+      and for every view when the regressor's weights cannot be loaded (said in the description).
 
     Returns the views and a description of what was used."""
     if initialiser not in INITIALISERS:
@@ -186,7 +193,10 @@ def view_bodies(rig: Rig, body: BodyModel, initialiser: str, variant: str = "ful
     pnp = [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)]
     if initialiser == "pnp":
         return pnp, "pnp"
-    regressor = load_default_fusion_regressor(variant)
+    try:
+        regressor = load_default_fusion_regressor(variant)
+    except MocapgraphError as exc:
+        return pnp, f"pnp (the fusion regressor could not be loaded: {exc})"
     seen = [c for c in range(rig.num_cameras) if kps[c] is not None]
     out = list(pnp)
     fallback = []
