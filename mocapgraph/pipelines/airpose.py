@@ -32,11 +32,11 @@ from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.initialisation import fuse_bodies, relative_cameras
 from mocapgraph.graphs.solver import solve_staged
 from mocapgraph.pipelines.uncalibrated import (
+    INITIALISERS,
     Estimate,
     GraphOptions,
     Rig,
     RigGraph,
-    INITIALISERS,
     add_covariances,
     held_shape,
     hold,

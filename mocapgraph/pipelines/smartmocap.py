@@ -37,11 +37,11 @@ from mocapgraph.graphs.initialisation import fuse_bodies, ground_frame, moving_c
 from mocapgraph.graphs.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import solve_staged
 from mocapgraph.pipelines.uncalibrated import (
+    INITIALISERS,
     Estimate,
     GraphOptions,
     Rig,
     RigGraph,
-    INITIALISERS,
     add_covariances,
     held_shape,
     hold,
