@@ -11,7 +11,7 @@ Documented in ``docs/result-format.md``; written atomically like captures.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +101,12 @@ class Result:
 
 # ---------------------------------------------------------------------------------------------
 # Reading
+
+
+def options_parameters(options) -> dict:
+    """A pipeline's options dataclass as the result's ``parameters``: tuples as lists (TOML has
+    no tuples), unset (None) options left out."""
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None}
 
 
 def load_result(path: str | Path) -> Result:

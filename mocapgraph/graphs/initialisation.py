@@ -169,6 +169,12 @@ def _temporal_inliers(positions: np.ndarray, half_window: int = 7) -> np.ndarray
     return keep
 
 
+def _nearest_known(known: np.ndarray) -> np.ndarray:
+    """``(T,)`` for every frame, the index of the nearest frame where ``known (T,)`` holds."""
+    frames = np.flatnonzero(known)
+    return frames[np.abs(np.arange(len(known))[:, None] - frames[None, :]).argmin(axis=1)]
+
+
 def _fill_gaps(poses: np.ndarray, known: np.ndarray) -> np.ndarray:
     """Frames outside ``known``: positions interpolated linearly (held at the ends), rotation of
     the nearest known frame."""
@@ -177,8 +183,7 @@ def _fill_gaps(poses: np.ndarray, known: np.ndarray) -> np.ndarray:
     t = np.arange(len(poses))
     for a in range(3):
         out[:, a, 3] = np.interp(t, frames, poses[frames, a, 3])
-    nearest = frames[np.abs(t[:, None] - frames[None, :]).argmin(axis=1)]
-    out[~known, :3, :3] = poses[nearest[~known], :3, :3]
+    out[~known, :3, :3] = poses[_nearest_known(known)[~known], :3, :3]
     return out
 
 
@@ -249,10 +254,16 @@ def fuse_bodies(views: list[ViewEstimate], ref_T_c: np.ndarray, known: np.ndarra
     if not seen.any():
         raise MocapgraphError("no frame has a view that saw enough of the body to place it")
     root = _fill_gaps(root, seen)
-    frames = np.flatnonzero(seen)
-    nearest = frames[np.abs(np.arange(T)[:, None] - frames[None, :]).argmin(axis=1)]
-    pose[~seen], shape[~seen] = pose[nearest[~seen]], shape[nearest[~seen]]
+    nearest = _nearest_known(seen)[~seen]
+    pose[~seen], shape[~seen] = pose[nearest], shape[nearest]
     return ViewEstimate(root, pose, shape, seen)
+
+
+def fused_shape(body: BodyModel, fused: ViewEstimate) -> np.ndarray:
+    """``(S,)`` the mean of the fused body's shapes over the frames it was seen, kept just inside
+    the model's bounds (a solve's first step may not start on a bound)."""
+    lo, hi = body.shape_bounds.T
+    return np.clip(fused.shape[fused.valid].mean(axis=0), lo + 1e-6, hi - 1e-6)
 
 
 @dataclass

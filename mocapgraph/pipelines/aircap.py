@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import gtsam
@@ -27,7 +27,7 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.data_tools.capture import Capture, load_capture
-from mocapgraph.data_tools.result import CameraTrack, Result, write_result
+from mocapgraph.data_tools.result import CameraTrack, Result, options_parameters, write_result
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.priors import (
     camera_offset_prior_factor,
@@ -642,7 +642,7 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
         timestamps=times, joints=fk.joints, body_model=body.name, root=root, pose=pose, shape=estimate.shape,
         keypoints=keypoints, keypoint_format=first_format,
         flags={"num_detections": detections, "unconstrained": detections == 0},
-        log=estimate.log, parameters={k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None},
+        log=estimate.log, parameters=options_parameters(options),
     )  # fmt: skip
     for c, cam in enumerate(capture.cameras):
         if cam.name not in priors:

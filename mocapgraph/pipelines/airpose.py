@@ -18,7 +18,7 @@ model's size alone.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import gtsam
@@ -27,9 +27,9 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.data_tools.capture import Capture, load_capture
 from mocapgraph.data_tools.evaluation import PER_FRAME_CAMERA
-from mocapgraph.data_tools.result import Result, write_result
+from mocapgraph.data_tools.result import Result, options_parameters, write_result
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.initialisation import fuse_bodies, relative_cameras
+from mocapgraph.graphs.initialisation import fuse_bodies, fused_shape, relative_cameras
 from mocapgraph.graphs.solver import solve_staged
 from mocapgraph.pipelines.uncalibrated import (
     INITIALISERS,
@@ -76,7 +76,7 @@ def _kept(rig: Rig, keep: np.ndarray) -> Rig:
     """The rig's states where ``keep``; every camera moves relative to camera 1 unless both are static."""
     moving = [bool(m or rig.moving[rig.reference]) for m in rig.moving]
     idx = np.flatnonzero(keep)
-    return Rig(rig.names, moving, rig.intrinsics, rig.times[idx], rig.frames[:, idx], [rig.states[i] for i in idx], rig.reference)
+    return replace(rig, moving=moving, times=rig.times[idx], frames=rig.frames[:, idx], states=[rig.states[i] for i in idx])
 
 
 def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture_label: str = "") -> Result:
@@ -111,8 +111,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     notes.append("absolute scale: from the body model's size (shape prior) alone; the shape's covariance carries it")
     rig = rig.only(placed)
     fused = fuse_bodies(views, ref_T_c, known)
-    lo, hi = body.shape_bounds.T
-    shape = np.clip(fused.shape[fused.valid].mean(axis=0), lo + 1e-6, hi - 1e-6)
+    shape = fused_shape(body, fused)
     estimate = Estimate(fused.camera_T_root, fused.pose, shape, ref_T_c)
     for note in notes:
         say(note)
@@ -135,8 +134,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
         estimate = rg.read(values, estimate)
         log_rows = list(solved.log)
     seconds = time.perf_counter() - t_start
-    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None}
-    result = rig_result("airpose", capture, rig, body, estimate, PER_FRAME_CAMERA + rig.names[0], params, capture_label, placed)
+    result = rig_result("airpose", capture, rig, body, estimate, PER_FRAME_CAMERA + rig.names[0], options_parameters(options), capture_label, placed)
     result.log = log_rows
     if options.covariances and graph is not None:
         add_covariances(result, rg, graph, values, estimate)

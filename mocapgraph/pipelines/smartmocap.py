@@ -22,7 +22,7 @@ a weak one, so the data decide them. The scale comes from the body model's size 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import gtsam
@@ -31,9 +31,9 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
 from mocapgraph.data_tools.capture import Capture, load_capture
-from mocapgraph.data_tools.result import Result, write_result
+from mocapgraph.data_tools.result import Result, options_parameters, write_result
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.initialisation import fuse_bodies, ground_frame, moving_cameras_from_static, relative_cameras, rotation_mean
+from mocapgraph.graphs.initialisation import fuse_bodies, fused_shape, ground_frame, moving_cameras_from_static, relative_cameras, rotation_mean
 from mocapgraph.graphs.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import solve_staged
 from mocapgraph.pipelines.uncalibrated import (
@@ -280,8 +280,7 @@ def initial_estimate(
     ref_T_c, known = moving_cameras_from_static([rig.coco_keypoints(c) for c in range(rig.num_cameras)], rig.camera_matrices(), ref_T_c, known, rig.moving)
     placed = [bool(known[c].any()) for c in range(rig.num_cameras)]
     fused = fuse_bodies(views, ref_T_c, known)
-    lo, hi = body.shape_bounds.T
-    shape = np.clip(fused.shape[fused.valid].mean(axis=0), lo + 1e-6, hi - 1e-6)
+    shape = fused_shape(body, fused)
     ground = ground_frame(body, fused, shape)
     if not ground.from_feet:
         notes.append(
@@ -342,8 +341,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     )  # fmt: skip
     estimate = rg.read(solved_final.values, stitched)
     seconds = time.perf_counter() - t_start
-    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None}
-    result = rig_result("smartmocap", capture, rig, body, estimate, "ground_plane", params, capture_label, placed)
+    result = rig_result("smartmocap", capture, rig, body, estimate, "ground_plane", options_parameters(options), capture_label, placed)
     result.log = list(solved_final.log)
     if options.covariances:
         add_covariances(result, rg, graph, solved_final.values, estimate)

@@ -14,7 +14,7 @@ between solves, processes and Ray tasks (it pickles without GTSAM objects).
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -94,13 +94,13 @@ class Rig:
         """``(N,)`` the sum of the keypoints' confidences over all views at each state."""
         return np.array([sum(float(o.weights.sum()) for o in obs) for obs in self.states])
 
-    def view_keypoints(self, c: int) -> tuple[np.ndarray, str]:
+    def view_keypoints(self, c: int) -> tuple[np.ndarray, str] | None:
         """``(N, K, 3)`` camera ``c``'s undistorted keypoints and confidences at every state (NaN
-        where it has no frame or detection) of its first detector, and that detector's format."""
-        fmts = [o.fmt for obs in self.states for o in obs if o.camera == c]
-        if not fmts:
-            raise MocapgraphError(f"camera {self.names[c]}: no detections at any body state")
-        fmt = fmts[0]
+        where it has no frame or detection) of its first detector, and that detector's format;
+        None when the camera has no detection at any state."""
+        fmt = next((o.fmt for obs in self.states for o in obs if o.camera == c), None)
+        if fmt is None:
+            return None
         K = next(len(o.observed) for obs in self.states for o in obs if o.camera == c and o.fmt == fmt)
         out = np.full((len(self.states), K, 3), np.nan)
         for i, obs in enumerate(self.states):
@@ -112,10 +112,8 @@ class Rig:
 
     def coco_keypoints(self, c: int) -> np.ndarray | None:
         """``(N, 17, 3)`` camera ``c``'s COCO-17 points at every state, or None without detections."""
-        if not any(o.camera == c for obs in self.states for o in obs):
-            return None
-        keypoints, fmt = self.view_keypoints(c)
-        return coco_keypoints(keypoints, fmt)
+        view = self.view_keypoints(c)
+        return None if view is None else coco_keypoints(*view)
 
     def camera_matrices(self) -> list[np.ndarray]:
         """Per camera, ``K (3, 3)`` of its undistorted image."""
@@ -125,14 +123,11 @@ class Rig:
         """The rig without the frames and observations of the cameras not in ``cameras`` (per camera)."""
         keep = np.asarray(cameras, dtype=bool)
         states = [[o for o in obs if keep[o.camera]] for obs in self.states]
-        return Rig(self.names, self.moving, self.intrinsics, self.times, np.where(keep[:, None], self.frames, -1), states, self.reference)
+        return replace(self, frames=np.where(keep[:, None], self.frames, -1), states=states)
 
     def subset(self, start: int, stop: int) -> Rig:
         """The states ``[start, stop)`` (frames and observations keep their camera frame indices)."""
-        return Rig(
-            self.names, self.moving, self.intrinsics, self.times[start:stop], self.frames[:, start:stop],
-            self.states[start:stop], self.reference,
-        )  # fmt: skip
+        return replace(self, times=self.times[start:stop], frames=self.frames[:, start:stop], states=self.states[start:stop])
 
 
 def rig_from_capture(capture: Capture, detectors: tuple[str, ...] | None = None, reference: int = 0) -> Rig:
@@ -186,7 +181,7 @@ def view_bodies(rig: Rig, body: BodyModel, initialiser: str, variant: str = "ful
     Returns the views and a description of what was used."""
     if initialiser not in INITIALISERS:
         raise MocapgraphError(f"initialiser {initialiser!r}: choose one of {', '.join(INITIALISERS)}")
-    kps = [rig.view_keypoints(c) if any(o.camera == c for obs in rig.states for o in obs) else None for c in range(rig.num_cameras)]
+    kps = [rig.view_keypoints(c) for c in range(rig.num_cameras)]
     N = len(rig.states)
     K = rig.camera_matrices()
     empty = ViewEstimate(np.tile(np.eye(4), (N, 1, 1)), np.zeros((N, NUM_JOINTS - 1, 3)), np.tile(body.default_shape, (N, 1)), np.zeros(N, bool))
