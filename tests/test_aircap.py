@@ -7,12 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mocapgraph.data_tools.capture import load_capture, write_capture
-from mocapgraph.data_tools.evaluation import evaluate
-from mocapgraph.data_tools.result import load_result
-from mocapgraph.data_tools.synthetic import synthesize
+from mocapgraph.data_tools.io.capture import load_capture, write_capture
+from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.io.result import load_result
+from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.pipelines.aircap import AircapOptions, run_aircap
-from mocapgraph.pipelines.cli import main
+from mocapgraph.cli.main import main
 
 
 @pytest.fixture(scope="module")

@@ -8,13 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mocapgraph.data_tools.capture import write_capture
-from mocapgraph.data_tools.evaluation import evaluate
-from mocapgraph.data_tools.result import load_result
-from mocapgraph.data_tools.synthetic import synthesize
+from mocapgraph.data_tools.io.capture import write_capture
+from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.io.result import load_result
+from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.pipelines.airpose import AirposeOptions, run_airpose
-from mocapgraph.pipelines.bench_airpose import camera2_position_error_m
-from mocapgraph.pipelines.cli import main
+from mocapgraph.benchmarks.airpose import camera2_position_error_m
+from mocapgraph.cli.main import main
 
 
 @pytest.fixture(scope="module")

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapgraph.data_tools.capture import write_capture
-from mocapgraph.data_tools.result import load_result
-from mocapgraph.data_tools.synthetic import synthesize
+from mocapgraph.data_tools.io.capture import write_capture
+from mocapgraph.data_tools.io.result import load_result
+from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.pipelines.baseline import run_baseline
 from mocapgraph.pipelines.batch import PIPELINES, run_batch
-from mocapgraph.pipelines.cli import main
+from mocapgraph.cli.main import main
 
 
 @pytest.fixture(scope="module")

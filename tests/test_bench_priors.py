@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.pipelines.bench_priors import _held_out_takes, corrupt
+from mocapgraph.benchmarks.priors import _held_out_takes, corrupt
 from conftest import random_root
 
 

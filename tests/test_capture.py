@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import random_root
-from mocapgraph.data_tools import capture as cap
-from mocapgraph.data_tools.capture import (
+from mocapgraph.data_tools.io import capture as cap
+from mocapgraph.data_tools.io.capture import (
     Camera,
     Capture,
     CaptureError,

@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from mocapgraph.data_tools.capture import write_capture
-from mocapgraph.pipelines.cli import main
+from mocapgraph.data_tools.io.capture import write_capture
+from mocapgraph.cli.main import main
 from test_capture import make_capture
 
 
@@ -92,7 +92,7 @@ def test_capture_info_says_what_the_loader_repaired(tmp_path, capsys):
      ["run", "aircap", "--help"], ["synth", "--help"], ["eval", "--help"], ["demo", "--help"]],
 )  # fmt: skip
 def test_every_subcommand_has_help(args):
-    proc = subprocess.run([sys.executable, "-m", "mocapgraph.pipelines.cli", *args], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "mocapgraph.cli.main", *args], capture_output=True, text=True)
     assert proc.returncode == 0 and "usage: mocapgraph" in proc.stdout
 
 

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.skeleton import JOINT_NAMES
-from mocapgraph.data_tools.cmu_motion import RETARGET_MAP, Y_UP_TO_Z_UP, load_cmu_take, retarget
+from mocapgraph.data_tools.sim.cmu_motion import RETARGET_MAP, Y_UP_TO_Z_UP, load_cmu_take, retarget
 from mocapgraph.errors import MocapgraphError
 
 NAMES = ["hip", "abdomen", "chest", "neck", "head", "lCollar", "lShldr", "lForeArm", "lHand", "rCollar",

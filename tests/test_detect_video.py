@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from mocapgraph.data_tools import detect_video as dv
-from mocapgraph.data_tools.capture import load_capture
+from mocapgraph.data_tools.tracking import detect_video as dv
+from mocapgraph.data_tools.io.capture import load_capture
 from mocapgraph.errors import MocapgraphError
 from test_importers import run_cli
 

@@ -11,8 +11,8 @@ from scipy.stats import spearmanr
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.rotations import rotvec_to_matrix
-from mocapgraph.data_tools.camera_model import distortion_max_radius2, in_frame_mask, project_points
-from mocapgraph.data_tools.detector_sim import (
+from mocapgraph.data_tools.geometry.camera_model import distortion_max_radius2, in_frame_mask, project_points
+from mocapgraph.data_tools.sim.detectors import (
     DETECTOR_PRESETS,
     DetectorModel,
     occluded_by_capsules,

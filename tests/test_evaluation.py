@@ -8,10 +8,10 @@ import pytest
 from conftest import random_root
 from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import rotvec_to_matrix
-from mocapgraph.data_tools.capture import Camera, Capture, GroundTruth
-from mocapgraph.data_tools.evaluation import evaluate
-from mocapgraph.data_tools.timing import match_times
-from mocapgraph.data_tools.result import CameraTrack, Result
+from mocapgraph.data_tools.io.capture import Camera, Capture, GroundTruth
+from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.geometry.timing import match_times
+from mocapgraph.data_tools.io.result import CameraTrack, Result
 from mocapgraph.errors import MocapgraphError
 
 

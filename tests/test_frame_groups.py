@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mocapgraph.data_tools.capture import Camera, Capture
+from mocapgraph.data_tools.io.capture import Camera, Capture
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.frame_groups import frame_groups
 

@@ -8,7 +8,7 @@ import pytest
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import COCO17, get_format
-from mocapgraph.data_tools.cmu_motion import motion_dir
+from mocapgraph.data_tools.sim.cmu_motion import motion_dir
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.fusion_regressor import (
     CROP, FusionRegressor, ViewInput, crop_features, default_path, load_default_fusion_regressor,

@@ -11,7 +11,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
 from mocapgraph.factors.reprojection import ShapeTableCache
-from mocapgraph.graphs.keys import camera_key, pose_key, root_key, shape_key
+from mocapgraph.factors.keys import camera_key, pose_key, root_key, shape_key
 from test_factors import assert_jacobians, random_shape, standing_root  # shared helpers (tests/ is on sys.path)
 
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from mocapgraph.body.rotations import rotvec_to_matrix
-from mocapgraph.data_tools.capture import CaptureError, load_capture
-from mocapgraph.pipelines.cli import main
-from mocapgraph.data_tools.importers import (
+from mocapgraph.data_tools.io.capture import CaptureError, load_capture
+from mocapgraph.cli.main import main
+from mocapgraph.data_tools.io.importers import (
     CameraCalibration,
     assemble_capture,
     read_calibration,
@@ -308,7 +308,7 @@ def test_assemble_capture_round_trip(tmp_path):
     kp_s, _ = detections(5, seed=1)
     R = rotvec_to_matrix(RVEC1)
     K = np.array([[80.0, 0, 32], [0, 80, 24], [0, 0, 1]])
-    from mocapgraph.data_tools.capture import world_T_camera_from_Rt
+    from mocapgraph.data_tools.io.capture import world_T_camera_from_Rt
 
     calib = [CameraCalibration("front", K, DIST1, (64, 48), world_T_camera_from_Rt(R, T1))]
     out = assemble_capture(

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapgraph.body import load_body_model
-from mocapgraph.data_tools.camera_model import project_points
+from mocapgraph.data_tools.geometry.camera_model import project_points
 from mocapgraph.graphs.initialisation import (
     fuse_bodies,
     ground_frame,

@@ -9,9 +9,9 @@ import pytest
 
 from mocapgraph.body import load_body_model
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.factors.joint_smoothness import joint_smoothness_factor
+from mocapgraph.factors.smoothness import joint_smoothness_factor
 from mocapgraph.factors.reprojection import ShapeTableCache
-from mocapgraph.graphs.keys import pose_key, root_key, shape_key
+from mocapgraph.factors.keys import pose_key, root_key, shape_key
 from test_factors import assert_jacobians, random_shape, standing_root  # shared helpers (tests/ is on sys.path)
 
 

@@ -9,8 +9,8 @@ from scipy.linalg import orthogonal_procrustes
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from mocapgraph.data_tools.alignment import Similarity, procrustes_trajectory, umeyama
-from mocapgraph.data_tools.metrics import (
+from mocapgraph.data_tools.evaluation.alignment import Similarity, procrustes_trajectory, umeyama
+from mocapgraph.data_tools.evaluation.metrics import (
     MetricResult,
     Unit,
     acceleration_error_m_s2,

@@ -11,8 +11,8 @@ import pytest
 from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import matrix_to_rotvec, rotvec_to_matrix
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES
-from mocapgraph.data_tools.cmu_motion import motion_dir
-from mocapgraph.data_tools.motion_sources import (
+from mocapgraph.data_tools.sim.cmu_motion import motion_dir
+from mocapgraph.data_tools.sim.motion_sources import (
     CMU_BONES,
     FOOT_KEYPOINTS,
     PROCEDURAL_KINDS,

@@ -9,9 +9,9 @@ import pytest
 from scipy.stats import multivariate_normal
 
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keys import pose_key
+from mocapgraph.factors.keys import pose_key
 from mocapgraph.graphs.initialisation import neutral_pose
-from mocapgraph.pipelines.cli import main
+from mocapgraph.cli.main import main
 from mocapgraph.priors import PoseGMM, fit_pose_gmm, load_default_pose_gmm, pose_gmm_factor
 from mocapgraph.priors.training import nearest_mean_geodesic, split_by_subject
 from test_cmu_motion import write_take

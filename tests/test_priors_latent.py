@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keys import motion_latent_key, pose_latent_key
+from mocapgraph.factors.keys import motion_latent_key, pose_latent_key
 from mocapgraph.priors.latent import BatchedDecoder, latent_prior_factor
 
 

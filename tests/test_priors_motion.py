@@ -9,9 +9,9 @@ import torch
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import axis_rotation
-from mocapgraph.data_tools.motion_sources import procedural_motion
+from mocapgraph.data_tools.sim.motion_sources import procedural_motion
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keys import ground_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
+from mocapgraph.factors.keys import ground_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import SolverOptions, levenberg_marquardt
 from mocapgraph.priors.latent import BatchedDecoder
 from mocapgraph.priors.motion_factor import MotionVAEPrior

@@ -13,9 +13,9 @@ from scipy.stats import multivariate_normal
 
 from mocapgraph.body import load_body_model
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keys import pose_key, pose_latent_key
+from mocapgraph.factors.keys import pose_key, pose_latent_key
 from mocapgraph.graphs.initialisation import neutral_pose
-from mocapgraph.pipelines.cli import main
+from mocapgraph.cli.main import main
 from mocapgraph.priors.plots import pose_grid_png
 from mocapgraph.priors.pose_vae import (
     PoseVAE,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import random_root
-from mocapgraph.data_tools.result import CameraTrack, Result, ResultError, load_result, write_result
+from mocapgraph.data_tools.io.result import CameraTrack, Result, ResultError, load_result, write_result
 
 
 def make_result(with_body: bool = True) -> Result:

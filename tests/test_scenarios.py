@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 
 from mocapgraph.body.rotations import matrix_to_rotvec, rotvec_to_matrix
-from mocapgraph.data_tools.capture import SENSOR_FIELDS, Camera, Capture, load_capture, write_capture
-from mocapgraph.data_tools.camera_model import project_points
-from mocapgraph.data_tools.scenarios import (
+from mocapgraph.data_tools.io.capture import SENSOR_FIELDS, Camera, Capture, load_capture, write_capture
+from mocapgraph.data_tools.geometry.camera_model import project_points
+from mocapgraph.data_tools.sim.scenarios import (
     PRESETS,
     look_at,
     multirotor_rotations,
     scenario_cameras,
     subject_visibility,
 )
-from mocapgraph.data_tools.sensors import (
+from mocapgraph.data_tools.sim.sensors import (
     GRAVITY_M_S2,
     GRAVITY_WORLD,
     BaroNoise,

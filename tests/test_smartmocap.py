@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from mocapgraph.body import load_body_model
-from mocapgraph.data_tools.evaluation import evaluate
-from mocapgraph.data_tools.synthetic import synthesize
+from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.pipelines.smartmocap import SmartmocapOptions, chunk_bounds, run_smartmocap, stitch
 from mocapgraph.pipelines.uncalibrated import Estimate, Rig
@@ -160,9 +160,9 @@ def test_no_detections_is_one_clear_error(capture):
 
 
 def test_command_line(tmp_path, capsys):
-    from mocapgraph.data_tools.capture import write_capture
-    from mocapgraph.data_tools.result import load_result
-    from mocapgraph.pipelines.cli import main
+    from mocapgraph.data_tools.io.capture import write_capture
+    from mocapgraph.data_tools.io.result import load_result
+    from mocapgraph.cli.main import main
 
     cap_dir = write_capture(synthesize("rich", seed=3, duration_s=1.0), tmp_path / "cap")
     args = ["run", "smartmocap", str(cap_dir), "--out", str(tmp_path / "res"), "--motion-prior", "none", "--workers", "1", "--quiet", "--no-covariances"]

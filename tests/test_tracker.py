@@ -13,9 +13,9 @@ import pytest
 from scipy.ndimage import uniform_filter1d
 
 from mocapgraph.body.rotations import rotvec_to_matrix
-from mocapgraph.data_tools.camera_model import in_image, project_points
-from mocapgraph.data_tools.synthetic import synthesize
-from mocapgraph.data_tools.tracker import (
+from mocapgraph.data_tools.geometry.camera_model import in_image, project_points
+from mocapgraph.data_tools.sim.synthetic import synthesize
+from mocapgraph.data_tools.tracking.tracker import (
     Track,
     TrackerParams,
     boxes_from_keypoints,

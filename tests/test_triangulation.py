@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from mocapgraph.data_tools.capture import Camera, Capture, Detector
-from mocapgraph.data_tools.triangulation import (
+from mocapgraph.data_tools.io.capture import Camera, Capture, Detector
+from mocapgraph.data_tools.geometry.triangulation import (
     Triangulation,
     projection_matrix,
     triangulate_capture,

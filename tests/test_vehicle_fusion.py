@@ -10,13 +10,13 @@ import pytest
 from scipy.stats import chi2
 
 from mocapgraph.body.rotations import matrix_to_rotvec, rotvec_to_matrix
-from mocapgraph.data_tools.capture import Camera, Capture
-from mocapgraph.data_tools.scenarios import scenario_cameras
-from mocapgraph.data_tools.sensors import BaroNoise, GpsNoise, ImuNoise, SelfPoseError, VehicleSensors
-from mocapgraph.data_tools.synthetic import synthesize
+from mocapgraph.data_tools.io.capture import Camera, Capture
+from mocapgraph.data_tools.sim.scenarios import scenario_cameras
+from mocapgraph.data_tools.sim.sensors import BaroNoise, GpsNoise, ImuNoise, SelfPoseError, VehicleSensors
+from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keys import drift_key, nav_keys
-from mocapgraph.graphs.vehicle_fusion import (
+from mocapgraph.factors.keys import drift_key, nav_keys
+from mocapgraph.graphs.navigation import (
     FusionNoise,
     OnlineNoise,
     _fix_factor,

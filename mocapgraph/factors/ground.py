@@ -17,14 +17,8 @@ import numpy as np
 
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.factors.noise import positive
 from mocapgraph.factors.reprojection import ShapeTableCache
-
-
-def _positive(value: float, name: str) -> float:
-    value = float(value)
-    if not (np.isfinite(value) and value > 0):
-        raise MocapgraphError(f"{name}: must be a finite number > 0, got {value}")
-    return value
 
 
 class _JointsBelowGround:
@@ -70,7 +64,7 @@ def joint_ground_factor(
         ground_z: height of the ground plane in the world frame, metres.
         fixed_shape: ``(S,)`` the shape when ``shape_key`` is None.
     """
-    sigma_m = _positive(sigma_m, "sigma_m")
+    sigma_m = float(positive(sigma_m, "sigma_m"))
     if (shape_key is None) == (fixed_shape is None):
         raise MocapgraphError("joint_ground_factor: give exactly one of shape_key and fixed_shape")
     if table_cache.keypoint_format != "body":
@@ -84,7 +78,7 @@ def joint_ground_factor(
 def camera_ground_factor(camera_key: int, sigma_m: float = 0.05, ground_z: float = 0.0, clearance_m: float = 0.0) -> gtsam.CustomFactor:
     """E_CGP on one camera pose (``world_T_camera``): its centre at least ``ground_z +
     clearance_m`` high (one row, metres / σ)."""
-    sigma_m = _positive(sigma_m, "sigma_m")
+    sigma_m = float(positive(sigma_m, "sigma_m"))
     floor = float(ground_z) + float(clearance_m)
 
     def error(this, values: gtsam.Values, H) -> np.ndarray:

@@ -35,7 +35,7 @@ performance notes), so the kernel has to be per keypoint, inside.
   all factors on the same shape key and format, rebuilds it only when the shape changes. The
   shape must stay within the body's bounds (``body.shape_bounds``): a shape outside them is a
   :class:`~mocapgraph.errors.MocapgraphError` naming the parameter, so a solver clamps the
-  shape after each step or keeps it inside with :func:`~mocapgraph.factors.priors.shape_prior_factor`.
+  shape after each step or keeps it inside with :func:`~mocapgraph.factors.body_priors.shape_prior_factor`.
 """
 
 from __future__ import annotations

@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocapgraph.data_tools.capture import Capture
-from mocapgraph.data_tools.timing import match_times
+from mocapgraph.data_tools.io.capture import Capture
+from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.errors import MocapgraphError
 
 SYNC_POLICIES = ("grid", "states", "closest")

@@ -26,7 +26,7 @@ import numpy as np
 
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
-from mocapgraph.data_tools.triangulation import triangulate_points
+from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.fusion_regressor import ViewEstimate
 

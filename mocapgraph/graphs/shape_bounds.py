@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body.model import BodyModel
-from mocapgraph.graphs.keys import shape_key
+from mocapgraph.factors.keys import shape_key
 
 
 def shape_projection(body: BodyModel) -> Callable[[gtsam.Values], gtsam.Values]:

@@ -8,7 +8,7 @@ import numpy as np
 
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
-from mocapgraph.graphs.keys import pose_key, root_key, shape_key
+from mocapgraph.factors.keys import pose_key, root_key, shape_key
 
 
 def joint_covariances(

@@ -26,24 +26,17 @@ from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.body.skeleton import NUM_JOINTS
-from mocapgraph.data_tools.capture import Capture, load_capture
-from mocapgraph.data_tools.result import CameraTrack, Result, options_parameters, write_result
+from mocapgraph.data_tools.io.capture import Capture, load_capture
+from mocapgraph.data_tools.io.result import CameraTrack, Result, options_parameters, write_result
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.factors.priors import (
-    camera_offset_prior_factor,
-    camera_prior_factor,
-    camera_smoothness_factor,
-    pose_regularizer_factor,
-    pose_smoothness_factor,
-    pose_velocity_factor,
-    root_smoothness_factor,
-    shape_prior_factor,
-)
+from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
+from mocapgraph.factors.camera_priors import camera_offset_prior_factor, camera_prior_factor
+from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import SYNC_POLICIES, FrameGroup, frame_groups
 from mocapgraph.graphs.initialisation import neutral_pose
-from mocapgraph.graphs.keys import (
+from mocapgraph.factors.keys import (
     camera_key,
     camera_offset_key,
     motion_frame_key,
@@ -167,7 +160,7 @@ def _log(options: AircapOptions, message: str) -> None:
 
 def camera_tracks(capture: Capture, mode: str) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], list[str]]:
     """Per usable camera: prior world_T_camera ``(T_c, 4, 4)`` and covariance ``(T_c, 6, 6)``; notes."""
-    from mocapgraph.graphs.vehicle_fusion import camera_priors
+    from mocapgraph.graphs.navigation import camera_priors
 
     tracks, notes = camera_priors(capture, source="online" if mode == "fixed" else "fused")
     out = {name: (track.world_T_camera, track.covariance) for name, track in tracks.items()}
@@ -564,7 +557,7 @@ def solve_sequence(problem: _Problem, start: _Estimate) -> tuple[_Estimate, gtsa
 
 def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_label: str = "") -> Result:
     """Run the pipeline on a loaded capture and return the result (nothing written)."""
-    from mocapgraph.data_tools.tracker import track_person
+    from mocapgraph.data_tools.tracking.tracker import track_person
 
     options = options or AircapOptions()
     options.check()

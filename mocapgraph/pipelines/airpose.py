@@ -25,9 +25,9 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body import load_body_model
-from mocapgraph.data_tools.capture import Capture, load_capture
-from mocapgraph.data_tools.evaluation import PER_FRAME_CAMERA
-from mocapgraph.data_tools.result import Result, options_parameters, write_result
+from mocapgraph.data_tools.io.capture import Capture, load_capture
+from mocapgraph.data_tools.evaluation.evaluate import PER_FRAME_CAMERA
+from mocapgraph.data_tools.io.result import Result, options_parameters, write_result
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.initialisation import fuse_bodies, fused_shape, relative_cameras
 from mocapgraph.graphs.solver import solve_staged

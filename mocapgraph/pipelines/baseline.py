@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.body.skeleton import NUM_JOINTS
-from mocapgraph.data_tools.capture import load_capture
-from mocapgraph.data_tools.result import Result, write_result
-from mocapgraph.data_tools.triangulation import DEFAULT_THRESHOLD_PX, triangulate_capture
+from mocapgraph.data_tools.io.capture import load_capture
+from mocapgraph.data_tools.io.result import Result, write_result
+from mocapgraph.data_tools.geometry.triangulation import DEFAULT_THRESHOLD_PX, triangulate_capture
 from mocapgraph.errors import MocapgraphError
 
 

@@ -32,8 +32,8 @@ def _silenced():
 
 def aircap(capture_path: Path, out: Path, overwrite: bool):
     """AirCap with its default options; one process (the batch's tasks are the parallelism)."""
-    from mocapgraph.data_tools.capture import load_capture
-    from mocapgraph.data_tools.result import write_result
+    from mocapgraph.data_tools.io.capture import load_capture
+    from mocapgraph.data_tools.io.result import write_result
     from mocapgraph.pipelines.aircap import AircapOptions, run_aircap
 
     with _silenced():
@@ -52,8 +52,8 @@ def baseline(capture_path: Path, out: Path, overwrite: bool):
 
 def airpose(capture_path: Path, out: Path, overwrite: bool):
     """AirPose+ with its default options."""
-    from mocapgraph.data_tools.capture import load_capture
-    from mocapgraph.data_tools.result import write_result
+    from mocapgraph.data_tools.io.capture import load_capture
+    from mocapgraph.data_tools.io.result import write_result
     from mocapgraph.pipelines.airpose import AirposeOptions, run_airpose
 
     with _silenced():
@@ -64,8 +64,8 @@ def airpose(capture_path: Path, out: Path, overwrite: bool):
 
 def smartmocap(capture_path: Path, out: Path, overwrite: bool):
     """SmartMocap with its default options; its chunks in this task's process (one worker)."""
-    from mocapgraph.data_tools.capture import load_capture
-    from mocapgraph.data_tools.result import write_result
+    from mocapgraph.data_tools.io.capture import load_capture
+    from mocapgraph.data_tools.io.result import write_result
     from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
 
     with _silenced():

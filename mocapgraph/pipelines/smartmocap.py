@@ -30,11 +30,11 @@ import numpy as np
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
-from mocapgraph.data_tools.capture import Capture, load_capture
-from mocapgraph.data_tools.result import Result, options_parameters, write_result
+from mocapgraph.data_tools.io.capture import Capture, load_capture
+from mocapgraph.data_tools.io.result import Result, options_parameters, write_result
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.initialisation import fuse_bodies, fused_shape, ground_frame, moving_cameras_from_static, relative_cameras, rotation_mean
-from mocapgraph.graphs.keys import pose_key, root_key, shape_key
+from mocapgraph.factors.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.solver import solve_staged
 from mocapgraph.pipelines.uncalibrated import (
     INITIALISERS,

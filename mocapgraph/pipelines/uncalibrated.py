@@ -21,24 +21,19 @@ import numpy as np
 
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
-from mocapgraph.data_tools.capture import Capture
-from mocapgraph.data_tools.result import CameraTrack, Result
-from mocapgraph.data_tools.triangulation import undistort_pixels
+from mocapgraph.data_tools.io.capture import Capture
+from mocapgraph.data_tools.io.result import CameraTrack, Result
+from mocapgraph.data_tools.geometry.triangulation import undistort_pixels
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
-from mocapgraph.factors.joint_smoothness import joint_smoothness_factor
-from mocapgraph.factors.priors import (
-    camera_smoothness_factor,
-    pose_regularizer_factor,
-    pose_velocity_factor,
-    root_smoothness_factor,
-    shape_prior_factor,
-)
+from mocapgraph.factors.smoothness import joint_smoothness_factor
+from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
+from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_velocity_factor, root_smoothness_factor
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.graphs.frame_groups import frame_groups
 from mocapgraph.graphs.initialisation import pnp_view
-from mocapgraph.graphs.keys import camera_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
+from mocapgraph.factors.keys import camera_key, motion_frame_key, motion_latent_key, pose_key, root_key, shape_key
 from mocapgraph.graphs.shape_bounds import shape_projection
 from mocapgraph.graphs.solver import annealed_stages
 from mocapgraph.graphs.uncertainty import joint_covariances

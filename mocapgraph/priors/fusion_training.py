@@ -1,7 +1,7 @@
 """Training and evaluating the fusion regressor on synthetic views of CMU motion.
 
 **Bodies.** Every ``stride``-th frame of the CMU takes, retargeted onto the body
-(:func:`mocapgraph.data_tools.cmu_motion.retarget`), stood at the world origin (the take's root
+(:func:`mocapgraph.data_tools.sim.cmu_motion.retarget`), stood at the world origin (the take's root
 height and orientation kept), with a shape drawn uniformly within the body's bounds except Anny's
 age, drawn within ``ADULT_AGE`` (one shape per run of ``frames_per_shape`` frames, so posing stays
 one call per shape). Without that restriction a quarter of the bodies are babies and toddlers
@@ -76,7 +76,7 @@ def load_body_frames(
     files: list[Path], body: BodyModel, stride: int = 4, frames_per_shape: int = 20, seed: int = 0, progress=None
 ) -> BodyFrames:
     """Every ``stride``-th frame of the take ``files``, retargeted, with random shapes (module docstring)."""
-    from mocapgraph.data_tools.cmu_motion import load_cmu_take, retarget
+    from mocapgraph.data_tools.sim.cmu_motion import load_cmu_take, retarget
 
     rng = np.random.default_rng(seed)
     roots, poses, subjects = [], [], []

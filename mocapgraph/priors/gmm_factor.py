@@ -59,7 +59,7 @@ def pose_gmm_factor(pose_key: int, gmm: PoseGMM, pose_dim: int | None = None) ->
     """Max-mixture Gaussian-mixture prior on one state's joint rotations.
 
     Args:
-        pose_key: the state's pose key (``mocapgraph.graphs.keys.pose_key``, ``Vector(63)``).
+        pose_key: the state's pose key (``mocapgraph.factors.keys.pose_key``, ``Vector(63)``).
         gmm: the mixture, e.g. :func:`mocapgraph.priors.load_default_pose_gmm`; when it models
             some joints only (``gmm.joints``), the factor touches only their dimensions.
         pose_dim: length of the pose variable; default 63 for a mixture over some joints, else

@@ -18,7 +18,7 @@ then the second column of the world-aligned joint frame ``G_c`` rotated into the
 A window is ``(25, 198)``; the takes are 30 fps, so a window spans 0.8 s.
 
 Training windows come from every ``cmu_SS_TT[...].npz`` of a motion directory retargeted onto
-the body with its default shape (:func:`mocapgraph.data_tools.cmu_motion.retarget`), one window
+the body with its default shape (:func:`mocapgraph.data_tools.sim.cmu_motion.retarget`), one window
 every ``stride`` frames of each take. After retargeting the CMU floors are at ``z ≈ 0`` (the 5th
 percentile of the lowest foot keypoint per take lies within ±5 cm of 0 on 40 sampled takes).
 """
@@ -160,7 +160,7 @@ def load_motion_windows(
     ``progress(message)`` is called every 100 takes. Raises a MocapgraphError naming the
     directory when it does not exist or holds no ``cmu_*.npz`` take.
     """
-    from mocapgraph.data_tools.cmu_motion import load_cmu_take, retarget
+    from mocapgraph.data_tools.sim.cmu_motion import load_cmu_take, retarget
     from mocapgraph.priors.training import take_files, take_subject
 
     directory = Path(motion_dir)

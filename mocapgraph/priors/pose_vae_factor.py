@@ -43,7 +43,7 @@ import gtsam
 import numpy as np
 
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keys import pose_key, pose_latent_key
+from mocapgraph.factors.keys import pose_key, pose_latent_key
 from mocapgraph.priors.latent import BatchedDecoder, latent_prior_factor
 from mocapgraph.priors.pose_vae import PoseVAE
 

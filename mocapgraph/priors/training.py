@@ -1,7 +1,7 @@
 """Training the pose GMM on CMU takes retargeted onto the body, with a validation split by subject.
 
 Frames come from every ``cmu_SS_TT[...].npz`` of the motion directory (``SS`` is the CMU
-subject), retargeted by :func:`mocapgraph.data_tools.cmu_motion.retarget` and thinned to every
+subject), retargeted by :func:`mocapgraph.data_tools.sim.cmu_motion.retarget` and thinned to every
 ``stride``-th frame (the takes are 30 fps resampled from 24 fps, so neighbours are nearly
 copies). Whole subjects are held out, so the validation numbers measure poses of people the
 mixture never saw.
@@ -57,7 +57,7 @@ def load_pose_frames(motion_dir: str | Path, body: BodyModel, stride: int = 4, p
     ``progress(message)`` is called every 100 takes. Raises a MocapgraphError naming the
     directory when it does not exist or holds no ``cmu_*.npz`` take.
     """
-    from mocapgraph.data_tools.cmu_motion import load_cmu_take, retarget
+    from mocapgraph.data_tools.sim.cmu_motion import load_cmu_take, retarget
 
     files = take_files(motion_dir)
     poses, subjects = [], []

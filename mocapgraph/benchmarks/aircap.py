@@ -1,0 +1,88 @@
+"""``mocapgraph bench aircap``: the thesis' comparison on one synthetic ``aircap`` capture, one run.
+
+Variants: ``per_frame`` (each state alone, cameras refined near their GPS/IMU prior), ``sequence``
+(the whole sequence, cameras refined), ``cameras_fixed_gps`` (the sequence with cameras held at
+the offline GPS/IMU fusion) and ``triangulation`` (the DLT + RANSAC baseline with the GPS/IMU
+camera poses as its calibration; it estimates keypoints, so its ``mpjpe_m`` is on keypoints).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+from scipy.stats import chi2
+
+from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.sim.synthetic import synthesize
+from mocapgraph.data_tools.geometry.triangulation import triangulate_capture
+from mocapgraph.data_tools.io.result import Result
+from mocapgraph.data_tools.geometry.timing import match_times
+from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.pipelines.aircap import AircapOptions, camera_tracks, run_aircap
+
+REPORTED = ("mpjpe_m", "pa_mpjpe_m", "ra_mpjpe_m", "mpe_m", "moe_rad", "mcpe_m", "mcoe_rad")
+
+
+def coverage(result: Result, truth_joints: np.ndarray, states: np.ndarray | None = None, level: float = 0.95) -> float:
+    """Fraction of joints whose error lies inside the ``level`` ellipsoid of their covariance;
+    ``truth_joints (N, 22, 3)`` at the result's states selected by the boolean mask ``states``
+    (default: all)."""
+    keep = slice(None) if states is None else states
+    cov = result.covariances["joints"][keep]
+    err = result.joints[keep] - truth_joints
+    ok = np.isfinite(err).all(-1) & np.isfinite(cov).all((-1, -2))
+    d2 = np.einsum("...i,...ij,...j->...", err[ok], np.linalg.inv(cov[ok]), err[ok])
+    return float(np.mean(d2 <= chi2.ppf(level, 3)))
+
+
+def _metrics(result: Result, capture) -> dict:
+    ev = evaluate(result, capture)
+    return {k: round(ev.metrics[k], 4) for k in REPORTED if k in ev.metrics}
+
+
+def bench_aircap(duration_s: float = 60.0, seed: int = 0) -> dict:
+    """All variants on one capture; frames/s count every camera frame of the capture."""
+    capture = synthesize("aircap", seed=seed, duration_s=duration_s)
+    frames = sum(cam.num_frames for cam in capture.cameras)
+    out: dict = {"duration_s": duration_s, "seed": seed, "camera_frames": frames}
+    variants = {
+        "per_frame": AircapOptions(mode="per-frame", cameras="refine", covariances=False, progress=False),
+        "sequence": AircapOptions(mode="sequence", cameras="refine", covariances=False, progress=False),
+        "cameras_fixed_gps": AircapOptions(mode="sequence", cameras="prior", covariances=False, progress=False),
+    }
+    for name, options in variants.items():
+        start = time.perf_counter()
+        result = run_aircap(capture, options)
+        seconds = time.perf_counter() - start
+        out[name] = _metrics(result, capture)
+        out[f"{name}_frames_per_s"] = round(frames / seconds, 1)
+        if name == "sequence":
+            # Uncertainty is measured on its own: the joint marginals cost more than the solve.
+            start = time.perf_counter()
+            with_cov = run_aircap(capture, replace(options, covariances=True))
+            out["covariance_seconds"] = round(time.perf_counter() - start - with_cov.parameters["seconds"], 1)
+            gt = capture.ground_truth
+            step = np.median(np.diff(gt.timestamps))
+            idx = match_times(gt.timestamps, with_cov.timestamps, tolerance=0.5 * step)  # as evaluate() matches
+            have = idx >= 0
+            out["coverage_95"] = round(coverage(with_cov, gt.joints[idx[have]], have), 3)
+
+    priors, _ = camera_tracks(capture, "prior")
+    calibrated = replace(
+        capture, cameras=[replace(cam, extrinsics=priors[cam.name][0]) for cam in capture.cameras if cam.name in priors]
+    )
+    start = time.perf_counter()
+    tri = triangulate_capture(calibrated)
+    seconds = time.perf_counter() - start
+    baseline = Result(
+        "baseline", capture.name, "capture", tri.timestamps, np.full((len(tri.timestamps), NUM_JOINTS, 3), np.nan),
+        keypoints=tri.points, keypoint_format=tri.format,
+    )  # fmt: skip
+    ev = evaluate(baseline, capture)
+    out["triangulation"] = {"mpjpe_m": round(ev.metrics["mpjpe_keypoints_m"], 4), "on": "keypoints"}
+    out["triangulation_frames_per_s"] = round(frames / seconds, 1)
+    out["sequence_frames_per_s"] = out.pop("sequence_frames_per_s")
+    out["per_frame_frames_per_s"] = out.pop("per_frame_frames_per_s")
+    return out

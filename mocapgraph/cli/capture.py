@@ -1,0 +1,193 @@
+"""Subcommands that make captures from real data: ``mocapgraph detect`` and ``mocapgraph capture import``.
+
+Wire them into the main parser with :func:`add_detect_parser` and :func:`add_import_parser`
+(each registers its command with ``set_defaults(func=...)``). Nothing heavy is imported until
+a command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from mocapgraph.errors import MocapgraphError
+
+
+def _named_path(text: str) -> tuple[str | None, Path]:
+    """``NAME=PATH`` → (NAME, PATH); a bare ``PATH`` → (None, PATH)."""
+    name, sep, rest = text.partition("=")
+    if sep and name and "/" not in name and not Path(text).exists():
+        return name, Path(rest)
+    return None, Path(text)
+
+
+def _videos(items: list[str] | None) -> dict[str, Path]:
+    out: dict[str, Path] = {}
+    for item in items or []:
+        name, path = _named_path(item)
+        name = name or path.stem
+        if name in out:
+            raise MocapgraphError(f"two videos for camera {name!r}; name them NAME=PATH")
+        out[name] = path
+    return out
+
+
+def _moving(args) -> dict[str, bool]:
+    moving = {name: False for name in args.static or []}
+    for name in args.moving or []:
+        if name in moving:
+            raise MocapgraphError(f"camera {name!r} is given as both --static and --moving")
+        moving[name] = True
+    return moving
+
+
+def _calibration(args):
+    from mocapgraph.data_tools.io.importers import read_calibration
+
+    return read_calibration(args.calibration, units=args.units) if args.calibration else None
+
+
+def _check_out(args) -> None:
+    if args.out.exists() and not args.overwrite:
+        raise MocapgraphError(f"{args.out}: already exists (pass --overwrite to replace it)")
+
+
+def _summary(path: Path) -> None:
+    from mocapgraph.data_tools.io.capture import load_capture
+
+    capture = load_capture(path)
+    print(f"wrote {path.resolve()}")
+    guessed = set(capture.metadata.get("imported", {}).get("guessed_intrinsics", []))
+    for cam in capture.cameras:
+        parts = [f"{cam.num_frames} frames at {cam.frame_rate:g} fps", f"{cam.image_size[0]}x{cam.image_size[1]}"]
+        parts.append("guessed intrinsics" if cam.name in guessed else "calibrated intrinsics")
+        parts.append("moving" if cam.moving else "static" + (" with pose" if cam.extrinsics is not None else ""))
+        for det in cam.detectors.values():
+            seen = np.isfinite(det.keypoints[..., 2]).any(axis=1).mean() if cam.num_frames else 0.0
+            parts.append(f"{det.name} ({det.format}) person in {100 * seen:.0f}% of frames")
+        if cam.video:
+            parts.append(cam.video)
+        print(f"  {cam.name}: " + ", ".join(parts))
+
+
+def _add_common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, required=True, help="capture directory to write")
+    parser.add_argument("--name", help="capture name (default: the directory name)")
+    parser.add_argument(
+        "--calibration", type=Path,
+        help="camera calibration: OpenCV YAML/XML/JSON, JSON or Pose2Sim/anipose TOML (docs/importing.md)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--units", choices=("m", "cm", "mm"), default="m",
+        help="length unit of the calibration's translations (default m; anipose uses its board's unit, often mm)",
+    )  # fmt: skip
+    parser.add_argument("--static", action="append", metavar="CAMERA", help="this camera does not move (repeatable)")
+    parser.add_argument(
+        "--moving", action="append", metavar="CAMERA",
+        help="this camera moves (repeatable; default: moving unless the calibration gives its pose)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--copy-videos", action="store_true",
+        help="copy the videos into the capture (default: hard-link them, copying only across file systems)",
+    )  # fmt: skip
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing capture at --out")
+
+
+def cmd_detect(args) -> None:
+    from mocapgraph.data_tools.tracking import detect_video as dv
+    from mocapgraph.data_tools.io.importers import assemble_capture, video_info
+
+    _check_out(args)
+    videos = _videos(args.videos)
+    calibration = _calibration(args)
+    rates = {}
+    for name, path in videos.items():  # every video readable and timed before the slow part
+        rates[name] = args.fps or video_info(path)[1]
+        if not rates[name]:
+            raise MocapgraphError(f"{path}: the video does not state its frame rate; pass --fps")
+    keypoints = {}
+    for name, path in videos.items():
+        # a fresh estimator per video: the tracker must not carry a person over from the last one
+        with dv.MediaPipePose(args.model_complexity, args.min_confidence) as estimator:
+            kp, boxes, _, _ = dv.detect_video(path, progress=not args.quiet, estimator=estimator)
+        keypoints[name] = (dv.DETECTOR_NAME, dv.FORMAT, kp, boxes)
+    path = assemble_capture(
+        videos, keypoints, calibration, rates, args.out, args.name,
+        moving=_moving(args), video_mode="copy" if args.copy_videos else "link", overwrite=args.overwrite,
+        metadata={"detector": {"name": dv.DETECTOR_NAME, "model_complexity": args.model_complexity,
+                               "min_confidence": args.min_confidence}},
+    )  # fmt: skip
+    _summary(path)
+
+
+def add_detect_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``detect VIDEO... --out CAPTURE`` on a subparsers object; returns its parser."""
+    parser = subparsers.add_parser(
+        "detect",
+        help="detect 2D body keypoints in videos (MediaPipe) and write a capture",
+        description="Run MediaPipe Pose (BlazePose, 33 points; the [video] extra) on every frame of each video "
+        "and write a capture with one camera per video, named by the file stem or NAME=PATH.",
+    )
+    parser.add_argument("videos", nargs="+", metavar="VIDEO", help="video file, or NAME=PATH to name its camera")
+    parser.add_argument("--fps", type=float, help="frames per second (default: what each video states)")
+    parser.add_argument(
+        "--model-complexity", type=int, choices=(0, 1, 2), default=1,
+        help="MediaPipe landmark model; only 1 ships with mediapipe 0.10.14 (default 1)",
+    )  # fmt: skip
+    parser.add_argument("--min-confidence", type=float, default=0.5, help="detection/tracking threshold (default 0.5)")
+    parser.add_argument("--quiet", action="store_true", help="no progress line")
+    _add_common(parser)
+    parser.set_defaults(func=cmd_detect)
+    return parser
+
+
+def cmd_import(args) -> None:
+    from mocapgraph.data_tools.io.importers import assemble_capture, read_openpose_json_folder
+
+    _check_out(args)
+    person: str | int = args.person
+    if person != "largest":
+        try:
+            person = int(person)
+        except ValueError:
+            raise MocapgraphError(f"--person must be 'largest' or an index, got {args.person!r}") from None
+    keypoints = {}
+    for item in args.openpose or []:
+        name, folder = _named_path(item)
+        name = name or folder.name
+        if name in keypoints:
+            raise MocapgraphError(f"two --openpose folders for camera {name!r}")
+        kp, boxes = read_openpose_json_folder(folder, person=person)
+        keypoints[name] = ("openpose", "openpose25", kp, boxes)
+    if not keypoints and not args.videos:
+        raise MocapgraphError("nothing to import: give --openpose CAMERA=FOLDER and/or --videos")
+    path = assemble_capture(
+        _videos(args.videos), keypoints, _calibration(args), args.fps, args.out, args.name,
+        moving=_moving(args), video_mode="copy" if args.copy_videos else "link", overwrite=args.overwrite,
+    )  # fmt: skip
+    _summary(path)
+
+
+def add_import_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``import`` on the ``capture`` command's subparsers; returns the ``import`` parser."""
+    parser = subparsers.add_parser(
+        "import",
+        help="make a capture from OpenPose JSON, videos and a calibration",
+        description="Write a capture from OpenPose --write_json folders (one per camera), videos and a "
+        "calibration file. Camera names must agree across them (docs/importing.md).",
+    )
+    parser.add_argument(
+        "--openpose", action="append", metavar="CAMERA=FOLDER",
+        help="a camera's OpenPose JSON folder (repeatable; a bare FOLDER names the camera after it)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--person", default="largest",
+        help="which person to keep per frame: 'largest' box (default) or an index into OpenPose's people list",
+    )  # fmt: skip
+    parser.add_argument("--videos", nargs="+", metavar="VIDEO", help="videos: PATH (camera = file stem) or CAMERA=PATH")
+    parser.add_argument("--fps", type=float, required=True, help="frames per second; timestamps are frame / fps")
+    _add_common(parser)
+    parser.set_defaults(func=cmd_import)
+    return parser

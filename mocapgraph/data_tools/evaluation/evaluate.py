@@ -1,0 +1,188 @@
+"""``mocapgraph eval``: a result against its capture's ground truth, with the alignment each
+metric's definition calls for (``docs/metrics.md``), reported by name."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from mocapgraph.body import load_body_model
+from mocapgraph.data_tools.evaluation import metrics as M
+from mocapgraph.data_tools.evaluation.alignment import Similarity, procrustes_trajectory, umeyama
+from mocapgraph.data_tools.io.capture import Capture
+from mocapgraph.data_tools.io.result import CameraTrack, Result
+from mocapgraph.data_tools.geometry.timing import match_times
+from mocapgraph.errors import MocapgraphError
+
+
+@dataclass
+class Evaluation:
+    """Metric values (units in the names), the alignment used, and per-frame curves.
+
+    Attributes:
+        metrics: name → value, e.g. ``mpjpe_m``, ``mcpe_m``; NaN where nothing could be compared.
+        alignment: how the result's world frame was brought onto the ground truth's.
+        frames_compared: body frames with ground truth; ``frames_without_truth`` the others.
+        per_frame: ``(T,)`` curves for reports, e.g. ``mpjpe_m``, ``timestamps``.
+    """
+
+    metrics: dict[str, float]
+    alignment: str
+    frames_compared: int
+    frames_without_truth: int
+    per_frame: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_joints: np.ndarray) -> tuple[Similarity, str]:
+    """The map from the result's world frame into the capture's, and its description."""
+    identity = Similarity(1.0, np.eye(3), np.zeros(3))
+    frame = result.world_frame
+    if frame == "capture":
+        return identity, "none (result is in the capture's world frame)"
+    if frame.startswith("camera:"):
+        name = frame.split(":", 1)[1]
+        poses = capture.ground_truth.cameras.get(name)
+        if poses is None:
+            raise MocapgraphError(f"result world frame {frame!r}: the capture has no ground-truth poses for camera {name!r}")
+        T = poses[0]
+        return Similarity(1.0, T[:3, :3], T[:3, 3]), f"rigid: camera {name}'s true pose at its first frame"
+    usable = np.isfinite(est_joints).all(-1)
+    if usable.sum() < 3:
+        return identity, "none possible (fewer than 3 estimated joints)"
+    fit = umeyama(est_joints[usable], gt_joints[usable], with_scale=True)
+    return fit, f"similarity (Umeyama with scale over all joints; scale {fit.scale:.3f})"
+
+
+PER_FRAME_CAMERA = "camera_per_frame:"
+
+
+def in_capture_frame(result: Result, capture: Capture) -> Result:
+    """A result whose world is a camera's frame at every instant (``camera_per_frame:<name>``,
+    AirPose's), moved into the capture's world by that camera's true pose at each body
+    timestamp; the cameras' tracks by the pose at their own frames. Anything else is returned as is.
+    """
+    if not result.world_frame.startswith(PER_FRAME_CAMERA):
+        return result
+    name = result.world_frame[len(PER_FRAME_CAMERA) :]
+    truth = capture.ground_truth.cameras.get(name)
+    if truth is None:
+        raise MocapgraphError(f"result world frame {result.world_frame!r}: the capture has no ground-truth poses for camera {name!r}")
+    stamps = capture.camera(name).timestamps
+
+    def pose_at(times: np.ndarray) -> np.ndarray:
+        # The reference camera's frame at each time: its frame nearest in time (the states are its frames).
+        idx = np.clip(np.searchsorted(stamps, times), 1, len(stamps) - 1)
+        idx -= (times - stamps[idx - 1]) < (stamps[idx] - times)
+        return truth[idx]
+
+    T = pose_at(result.timestamps)
+    moved = replace(result, world_frame="capture", cameras=dict(result.cameras))
+    moved.joints = np.einsum("tij,tkj->tki", T[:, :3, :3], result.joints) + T[:, None, :3, 3]
+    if result.keypoints is not None:
+        moved.keypoints = np.einsum("tij,tkj->tki", T[:, :3, :3], result.keypoints) + T[:, None, :3, 3]
+    if result.root is not None:
+        moved.root = T @ result.root
+    for cam_name, track in result.cameras.items():
+        moved.cameras[cam_name] = CameraTrack(track.timestamps, pose_at(track.timestamps) @ track.world_T_camera)
+    return moved
+
+
+def _matched(result: Result, gt) -> tuple[np.ndarray, np.ndarray]:
+    """Which body states have ground truth within half a frame (``(T,)`` bool) and its indices."""
+    step = np.median(np.diff(gt.timestamps)) if len(gt.timestamps) > 1 else 1.0
+    idx = match_times(gt.timestamps, result.timestamps, tolerance=0.5 * step)
+    have = idx >= 0
+    if not have.any():
+        raise MocapgraphError("no result timestamp lies within half a ground-truth frame of the ground truth")
+    return have, idx[have]
+
+
+def aligned(result: Result, capture: Capture) -> tuple[Result, str]:
+    """The result moved into the capture's world frame as its metrics' definitions say (rigid
+    per frame for ``camera_per_frame``, rigid for ``camera:``, a similarity over all joints for
+    other frames, nothing for ``capture``), and a description of the alignment."""
+    gt = capture.ground_truth
+    if gt is None:
+        raise MocapgraphError(f"capture {capture.name!r} has no ground truth to evaluate against")
+    per_frame = result.world_frame.startswith(PER_FRAME_CAMERA)
+    result = in_capture_frame(result, capture)
+    have, sel = _matched(result, gt)
+    align, how = _alignment(result, capture, gt.joints[sel], result.joints[have])
+    if per_frame:
+        how = "rigid per frame: the reference camera's true pose at each body timestamp"
+    moved = replace(result, cameras={n: CameraTrack(t.timestamps, align.apply_pose(t.world_T_camera)) for n, t in result.cameras.items()})
+    moved.joints = align.apply(result.joints)
+    moved.keypoints = None if result.keypoints is None else align.apply(result.keypoints)
+    moved.root = None if result.root is None else align.apply_pose(result.root)
+    return moved, how
+
+
+def evaluate(result: Result, capture: Capture) -> Evaluation:
+    """All metrics that the result's contents allow, against the capture's ground truth."""
+    result, how = aligned(result, capture)
+    gt = capture.ground_truth
+    have, sel = _matched(result, gt)
+    ref_joints = gt.joints[sel]
+    est_joints = result.joints[have]
+    out: dict[str, float] = {}
+    per_frame: dict[str, np.ndarray] = {"timestamps": result.timestamps[have]}
+
+    if np.isfinite(est_joints).any():
+        mpjpe = M.mpjpe_m(est_joints, ref_joints)
+        out["mpjpe_m"] = float(mpjpe)
+        per_frame["mpjpe_m"] = mpjpe.per_item
+        out["pa_mpjpe_m"] = float(M.pa_mpjpe_m(est_joints, ref_joints))
+        fps = 1.0 / np.median(np.diff(result.timestamps)) if len(result.timestamps) > 3 else None
+        if fps is not None and len(est_joints) > 3:
+            out["acceleration_error_m_s2"] = float(M.acceleration_error_m_s2(est_joints, ref_joints, fps))
+
+    if result.has_body_parameters:
+        est_root = result.root[have]
+        ref_root = gt.root[sel]
+        out["ra_mpjpe_m"] = float(M.ra_mpjpe_m(est_joints, ref_joints, est_root, ref_root))
+        out["mpe_m"] = float(M.mpe_m(est_root[:, :3, 3], ref_root[:, :3, 3]))
+        out["moe_rad"] = float(M.moe_rad(est_root[:, :3, :3], ref_root[:, :3, :3]))
+        out["joint_angle_error_rad"] = float(M.joint_angle_error_rad(result.pose[have], gt.pose[sel]))
+        if result.body_model == gt.body_model == "anny":
+            body = load_body_model("anny")
+            out["mpvpe_m"] = float(M.mpvpe_m(body.rest_joints(result.shape), body.rest_joints(gt.shape)))
+
+    if result.keypoints is not None and gt.body_model == "anny":
+        body = load_body_model("anny")
+        ref_kp = body.forward(gt.shape, gt.root[sel], gt.pose[sel], keypoints=result.keypoint_format).keypoints
+        mapped = body.table(gt.shape, result.keypoint_format).mapped
+        est_kp = result.keypoints[have][:, mapped]
+        out["mpjpe_keypoints_m"] = float(M.mpjpe_m(est_kp, ref_kp[:, mapped]))
+        per_frame["mpjpe_keypoints_m"] = M.mpjpe_m(est_kp, ref_kp[:, mapped]).per_item
+
+    est_cams, ref_cams, moving_pos, moving_ref, static_est, static_ref = [], [], [], [], [], []
+    for name, track in result.cameras.items():
+        truth = gt.cameras.get(name)
+        if truth is None:
+            continue
+        cam = capture.camera(name)
+        cidx = match_times(cam.timestamps, track.timestamps, tolerance=0.5 / cam.frame_rate)
+        ok = cidx >= 0
+        est = track.world_T_camera[ok]
+        ref = truth[cidx[ok]]
+        est_cams.append(est)
+        ref_cams.append(ref)
+        out[f"mcpe_m.{name}"] = float(M.mcpe_m(est, ref))
+        if not cam.moving:
+            static_est.append(est)
+            static_ref.append(ref)
+        if cam.moving and len(est) >= 3:
+            fit = procrustes_trajectory(est[:, :3, 3], ref[:, :3, 3], est[:, :3, :3], ref[:, :3, :3])
+            moving_pos.append(fit.apply_pose(est))
+            moving_ref.append(ref)
+    if est_cams:
+        out["mcpe_m"] = float(M.mcpe_m(np.concatenate(est_cams), np.concatenate(ref_cams)))
+        out["mcoe_rad"] = float(M.mcoe_rad(np.concatenate(est_cams), np.concatenate(ref_cams)))
+    if static_est:
+        out["static_mcpe_m"] = float(M.mcpe_m(np.concatenate(static_est), np.concatenate(static_ref)))
+        out["static_mcoe_rad"] = float(M.mcoe_rad(np.concatenate(static_est), np.concatenate(static_ref)))
+    if moving_pos:
+        out["moving_mcpe_procrustes_m"] = float(M.mcpe_m(np.concatenate(moving_pos), np.concatenate(moving_ref)))
+        out["moving_mcoe_procrustes_rad"] = float(M.mcoe_rad(np.concatenate(moving_pos), np.concatenate(moving_ref)))
+    return Evaluation(out, how, int(have.sum()), int((~have).sum()), per_frame)

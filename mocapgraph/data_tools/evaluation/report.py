@@ -1,0 +1,143 @@
+"""Evaluation reports: a metrics table and the thesis' figures, as a small HTML page with PNGs.
+
+Figures: the estimated root trajectory against ground truth, one panel per axis; the joint
+error per frame over the number of detections per frame (as a grey background), as AirCap's
+thesis plots them; and, when the results estimate cameras, every camera's estimated and true
+trajectory in 3D. Results are drawn after the alignment ``eval`` uses for their world frame.
+"""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+import numpy as np
+
+from mocapgraph.data_tools.io.capture import Capture
+from mocapgraph.data_tools.evaluation.evaluate import Evaluation, aligned
+from mocapgraph.data_tools.io.result import Result
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_root_trajectory(results: dict[str, Result], capture: Capture, path: Path) -> Path:
+    """Root position per axis (x, y, z) of each result against the ground truth."""
+    plt = _pyplot()
+    gt = capture.ground_truth
+    fig, axes = plt.subplots(3, 1, figsize=(9, 6.5), sharex=True)
+    for a, axis in enumerate("xyz"):
+        ax = axes[a]
+        ax.plot(gt.timestamps, gt.root[:, a, 3], color="black", lw=2, label="ground truth")
+        for label, res in results.items():
+            if res.root is not None:
+                ax.plot(res.timestamps, res.root[:, a, 3], lw=1, label=label)
+        ax.set_ylabel(f"root {axis} (m)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="best", fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_error_per_frame(evaluations: dict[str, Evaluation], result: Result, path: Path) -> Path:
+    """Joint position error per frame (lines) over the detections per frame (grey bars)."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    detections = result.flags.get("num_detections")
+    if detections is not None:
+        back = ax.twinx()
+        back.bar(result.timestamps, detections, width=np.median(np.diff(result.timestamps)), color="0.85", zorder=0)
+        back.set_ylabel("keypoints detected", color="0.5")
+        ax.set_zorder(back.get_zorder() + 1)
+        ax.patch.set_visible(False)
+    for label, ev in evaluations.items():
+        if "mpjpe_m" in ev.per_frame:
+            ax.plot(ev.per_frame["timestamps"], 100 * ev.per_frame["mpjpe_m"], lw=1, label=label)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("MPJPE (cm)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_camera_trajectories(results: dict[str, Result], capture: Capture, path: Path) -> Path:
+    """3D: each camera's true trajectory (black; a static camera as a triangle) and each
+    result's estimate (coloured, same marker), with the subject's true root path (grey)."""
+    plt = _pyplot()
+    gt = capture.ground_truth
+    fig = plt.figure(figsize=(8, 7))
+    ax = fig.add_subplot(projection="3d")
+    ax.plot(*gt.root[:, :3, 3].T, color="0.6", lw=1, label="subject (true root)")
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for c, cam in enumerate(capture.cameras):
+        truth = gt.cameras.get(cam.name)
+        if truth is None:
+            continue
+        style = dict(marker="^", ms=7, ls="none") if not cam.moving else dict(lw=2)
+        ax.plot(*truth[:, :3, 3].T, color="black", label="true cameras" if c == 0 else None, **style)
+        ax.text(*truth[0, :3, 3], f" {cam.name}", fontsize=7)
+        for k, (label, res) in enumerate(results.items()):
+            track = res.cameras.get(cam.name)
+            if track is not None:
+                est = dict(marker="v", ms=6, ls="none") if not cam.moving else dict(lw=1, ls="--")
+                ax.plot(*track.world_T_camera[:, :3, 3].T, color=colours[k % len(colours)], label=label if c == 0 else None, **est)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def write_report(
+    out_dir: Path, title: str, capture: Capture, results: dict[str, Result], evaluations: dict[str, Evaluation]
+) -> Path:
+    """``report.html`` with a metrics table (one row per result) and the figures."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    keys = list(dict.fromkeys(k for ev in evaluations.values() for k in ev.metrics if "." not in k))
+    rows = []
+    for label, ev in evaluations.items():
+        cells = "".join(f"<td>{ev.metrics[k]:.4f}</td>" if k in ev.metrics else "<td>–</td>" for k in keys)
+        rows.append(f"<tr><th>{html.escape(label)}</th>{cells}<td>{html.escape(ev.alignment)}</td></tr>")
+    header = "".join(f"<th>{html.escape(k)}</th>" for k in keys)
+    main = next(iter(results.values()))
+    moved = {label: aligned(res, capture)[0] for label, res in results.items()}
+    plot_root_trajectory(moved, capture, out_dir / "root_trajectory.png")
+    plot_error_per_frame(evaluations, main, out_dir / "error_per_frame.png")
+    cameras = ""
+    if any(res.cameras for res in results.values()):
+        plot_camera_trajectories(moved, capture, out_dir / "camera_trajectories.png")
+        cameras = '<h2>Camera trajectories (after alignment)</h2><img src="camera_trajectories.png" alt="estimated and true camera trajectories">'
+
+    page = f"""<!doctype html>
+<html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
+<style>body{{font-family:sans-serif;margin:2em}} table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:4px 8px;text-align:right}}</style></head><body>
+<h1>{html.escape(title)}</h1>
+<p>Capture <code>{html.escape(capture.name)}</code>: {len(capture.cameras)} cameras,
+{len(main.timestamps)} body states. Lengths in metres, angles in radians.</p>
+<table><tr><th>variant</th>{header}<th>alignment</th></tr>
+{"".join(rows)}
+</table>
+<h2>Root trajectory</h2><img src="root_trajectory.png" alt="root trajectory per axis">
+<h2>Error per frame</h2><img src="error_per_frame.png" alt="MPJPE per frame with detections">
+{cameras}
+</body></html>
+"""
+    path = out_dir / "report.html"
+    path.write_text(page, encoding="utf-8")
+    return path

@@ -1,0 +1,637 @@
+"""Simulated 2D keypoint detectors: realistic detections of a posed body from its ground truth.
+
+:func:`simulate_detections` poses the body, projects its keypoints through an OpenCV camera
+(:func:`project_points`, the one projection used by everything here) and applies, in this order:
+
+1. **Frame.** A point is *in frame* when it lies in front of the camera (depth > ``MIN_DEPTH_M``),
+   inside the image ``0 <= u < w, 0 <= v < h`` and inside the radius where the radial
+   distortion is still monotonic (beyond it OpenCV's polynomial folds far points back into the
+   image). Points out of frame are NaN. Format points the body cannot provide
+   (``mapped`` False, e.g. BlazePose's finger tips, mouth and inner/outer eye corners) are
+   always NaN: they are not synthesised.
+2. **Whole person.** The person is missed in a frame (every point NaN, box NaN) with probability
+   ``frame_miss_prob``, and always when the pelvis is behind the camera, when the person's image
+   height is below ``min_person_height_px`` or fewer than ``min_keypoints_in_frame`` points are
+   in frame.
+3. **Self-occlusion** (:func:`self_occluded`). A point is occluded when the ray from the camera
+   centre to it passes through a capsule around a bone of the 22-joint skeleton or the head
+   sphere (:data:`CAPSULE_RADII_M`, :data:`HEAD_SPHERE_RADIUS_M`). A capsule is shrunk, for that
+   point and frame only, so that the point lies ``occlusion_clearance_m`` outside it: a point
+   never hides behind the bone it sits on (the wrist on its forearm, the hip inside the pelvis),
+   yet the head still hides the nose from behind. A blended format point (OpenPose's neck and
+   mid-hip, inside the body) is occluded only when every point it blends is. Occluded points are dropped with probability
+   ``occluded_drop_prob``, otherwise their noise is multiplied by ``occluded_noise_mult`` and
+   their confidence by ``occluded_conf_mult``.
+4. **Noise.** The person's image height is ``h = f_y · stature / depth(pelvis)``, where stature is
+   the heel-to-eye extent of the body's rest keypoints (1.50 m for the default Anny body). Each
+   point gets 2D noise of standard deviation per axis
+   ``σ = sqrt((noise_frac_of_height · h)² + noise_floor_px²) · difficulty[part]``
+   (× ``occluded_noise_mult`` if occluded); Gaussian, or a 2D Student-t with ``noise_tail_dof``
+   degrees of freedom scaled to the same σ; optionally AR(1)-correlated across frames
+   (``noise_frame_correlation``), as real detectors jitter smoothly.
+5. **Confidence** tracks the actual pixel error ``e`` of the point:
+   ``c = clip(conf_max · exp(-e² / (2 (conf_error_frac_of_height · h)²)) + N(0, conf_noise_std²), 0, 1)``,
+   times ``occluded_conf_mult`` when occluded. Points with ``c <= conf_threshold`` are NaN.
+6. **Outliers.** With probability ``outlier_prob`` a point in frame is placed elsewhere, with a
+   confidence uniform in ``outlier_conf_range``: on its "shadow" (the point mirrored in the
+   ground plane ``z = ground_z``, projected; share ``outlier_shadow_fraction``), on another
+   in-frame point of the person (share ``outlier_other_point_fraction``), or else uniformly in
+   the person's box. A shadow or other point that is unavailable falls back to the box.
+7. **Dropout.** Each point in frame is missed with probability ``keypoint_miss_prob``; within
+   ``border_dropout_px`` of the image border with probability ``border_drop_prob``; a point whose
+   noisy position leaves the image is NaN.
+8. **Swaps.** Per frame, the whole body's left/right labels are swapped with probability
+   ``body_swap_prob`` (every ``left_right_pairs`` pair exchanges its rows: position and
+   confidence), and, independently, one limb pair (legs with share ``limb_swap_leg_fraction``,
+   else arms) with probability ``limb_swap_prob``. A swapped point keeps the confidence it had.
+9. **Box.** The tight box around the exact projections of the in-frame points and the final
+   detections, each side widened by ``max(0, box_margin + N(0, box_jitter²)) · h`` (so it always
+   holds every detection), clipped to the image; score ``clip(N(box_score_mean,
+   box_score_std²), 0, 1) · sqrt(fraction of mapped points visible)``.
+
+Every random number is drawn up front in one fixed order with fixed shapes, so the same
+generator state gives the same detections, and changing one rate does not reshuffle the others.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+from scipy.signal import lfilter
+from scipy.stats import chi2
+
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS, left_right_pairs
+from mocapgraph.data_tools.geometry.camera_model import MIN_DEPTH_M, in_frame_mask, in_image, project_points
+from mocapgraph.data_tools.io.capture import Detector
+from mocapgraph.errors import MocapgraphError
+
+
+CAPSULE_RADII_M: dict[str, float] = {
+    # bone parent → child, named by the child joint
+    "left_hip": 0.10, "right_hip": 0.10,                      # pelvis to hip joints
+    "spine1": 0.13, "spine2": 0.13, "spine3": 0.13,           # torso
+    "neck": 0.12,                                             # upper chest (spine3 → neck base)
+    "left_collar": 0.08, "right_collar": 0.08,
+    "head": 0.06,                                             # the neck itself
+    "left_knee": 0.08, "right_knee": 0.08,                    # upper legs
+    "left_ankle": 0.06, "right_ankle": 0.06,                  # lower legs
+    "left_foot": 0.04, "right_foot": 0.04,
+    "left_shoulder": 0.06, "right_shoulder": 0.06,            # shoulder girdle
+    "left_elbow": 0.05, "right_elbow": 0.05,                  # upper arms
+    "left_wrist": 0.05, "right_wrist": 0.05,                  # forearms
+}  # fmt: skip
+"""Capsule radius around each bone of the 22-joint skeleton, by the bone's child joint (metres)."""
+
+HEAD_SPHERE_RADIUS_M = 0.11
+"""Radius of the head sphere, centred between the ears (metres)."""
+
+CAPSULE_NAMES: tuple[str, ...] = JOINT_NAMES[1:] + ("head_sphere",)
+
+DEFAULT_DIFFICULTY: dict[str, float] = {
+    "nose": 0.8, "eye": 0.8, "eye_inner": 0.8, "eye_outer": 0.8, "ear": 1.0, "mouth": 0.9,
+    "neck": 1.0, "shoulder": 1.0, "mid_hip": 1.1, "hip": 1.2,
+    "elbow": 1.3, "knee": 1.2, "wrist": 1.6, "ankle": 1.4,
+    "heel": 1.5, "big_toe": 1.5, "small_toe": 1.6, "foot_index": 1.5,
+    "pinky": 2.0, "index": 2.0, "thumb": 2.0,
+}  # fmt: skip
+"""Noise multiplier per body part (point name without its left/right side); 1 when not listed."""
+
+LIMB_PARTS: dict[str, tuple[str, ...]] = {
+    "arm": ("elbow", "wrist", "pinky", "index", "thumb"),
+    "leg": ("knee", "ankle", "heel", "big_toe", "small_toe", "foot_index"),
+}
+"""The parts whose left/right labels a single-limb swap exchanges."""
+
+
+def part_name(point_name: str) -> str:
+    """A point's body part without its side: ``left_wrist`` → ``wrist``, ``mouth_left`` → ``mouth``."""
+    for side in ("left_", "right_"):
+        if point_name.startswith(side):
+            return point_name[len(side) :]
+    for side in ("_left", "_right"):
+        if point_name.endswith(side):
+            return point_name[: -len(side)]
+    return point_name
+
+
+@dataclass(frozen=True)
+class DetectorModel:
+    """How a simulated 2D detector errs. Every rate is a parameter; defaults describe a decent
+    top-down detector. See the module docstring for exactly where each one acts.
+
+    Attributes:
+        name: the detector's name in the capture (``Detector.name``).
+        format: keypoint format of the registry (``coco17``, ``openpose25``, ``blazepose33``, …).
+        noise_frac_of_height: pixel noise std per axis as a fraction of the person's image height.
+        noise_floor_px: noise std (pixels) added in quadrature, the limit for tiny persons.
+        noise_tail_dof: Student-t degrees of freedom of the noise (> 2); ``inf`` = Gaussian.
+        noise_frame_correlation: AR(1) coefficient of the noise from one frame to the next, [0, 1).
+        difficulty: noise multiplier per body part (:func:`part_name`), 1 for parts not listed.
+        conf_max: confidence of an error-free, unoccluded point.
+        conf_error_frac_of_height: the error (fraction of image height) at which the confidence
+            has fallen to ``exp(-1/2)`` of ``conf_max``.
+        conf_noise_std: std of the noise added to the confidence.
+        conf_threshold: points with confidence at or below this are reported missing.
+        occluded_drop_prob: probability that a self-occluded point is not reported.
+        occluded_noise_mult: noise multiplier of a self-occluded point.
+        occluded_conf_mult: confidence multiplier of a self-occluded point.
+        occlusion_radius_scale: scales every capsule radius (heavier or slimmer bodies).
+        occlusion_clearance_m: a point is kept this far outside any capsule it lies in.
+        frame_miss_prob: probability that the whole person is missed in a frame.
+        min_person_height_px: smaller persons (image height) are never detected.
+        min_keypoints_in_frame: persons with fewer mapped points in frame are never detected.
+        keypoint_miss_prob: probability that a point in frame is not reported.
+        body_swap_prob: per-frame probability of a whole-body left/right label swap.
+        limb_swap_prob: per-frame probability that one limb's left/right labels swap.
+        limb_swap_leg_fraction: share of limb swaps that swap the legs (the rest swap the arms).
+        outlier_prob: probability that a point in frame is placed elsewhere.
+        outlier_shadow_fraction: share of outliers placed on the point's ground-plane mirror image.
+        outlier_other_point_fraction: share of outliers placed on another point of the person.
+        outlier_conf_range: (low, high) uniform confidence of an outlier.
+        border_dropout_px: width of the image border band where points may drop out (0 = off).
+        border_drop_prob: probability that a point inside that band is not reported.
+        box_margin_frac_of_height: margin added on each side of the tight keypoint box.
+        box_jitter_frac_of_height: std of the jitter of each side's margin (margin stays >= 0).
+        box_score_mean: mean box score of a fully visible person.
+        box_score_std: std of the box score.
+    """
+
+    name: str = "simulated"
+    format: str = "coco17"
+    noise_frac_of_height: float = 0.01
+    noise_floor_px: float = 0.0
+    noise_tail_dof: float = math.inf
+    noise_frame_correlation: float = 0.0
+    difficulty: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_DIFFICULTY))
+    conf_max: float = 0.95
+    conf_error_frac_of_height: float = 0.03
+    conf_noise_std: float = 0.05
+    conf_threshold: float = 0.0
+    occluded_drop_prob: float = 0.3
+    occluded_noise_mult: float = 2.0
+    occluded_conf_mult: float = 0.5
+    occlusion_radius_scale: float = 1.0
+    occlusion_clearance_m: float = 0.01
+    frame_miss_prob: float = 0.02
+    min_person_height_px: float = 10.0
+    min_keypoints_in_frame: int = 3
+    keypoint_miss_prob: float = 0.01
+    body_swap_prob: float = 0.005
+    limb_swap_prob: float = 0.01
+    limb_swap_leg_fraction: float = 0.7
+    outlier_prob: float = 0.005
+    outlier_shadow_fraction: float = 0.3
+    outlier_other_point_fraction: float = 0.3
+    outlier_conf_range: tuple[float, float] = (0.3, 0.7)
+    border_dropout_px: float = 0.0
+    border_drop_prob: float = 0.5
+    box_margin_frac_of_height: float = 0.06
+    box_jitter_frac_of_height: float = 0.02
+    box_score_mean: float = 0.9
+    box_score_std: float = 0.05
+
+    def __post_init__(self):
+        get_format(self.format)  # an unknown format is an error that lists the known ones
+        where = f"detector model {self.name!r}"
+        probabilities = (
+            "conf_max", "conf_threshold", "occluded_drop_prob", "frame_miss_prob",
+            "keypoint_miss_prob", "body_swap_prob", "limb_swap_prob", "limb_swap_leg_fraction",
+            "outlier_prob", "outlier_shadow_fraction", "outlier_other_point_fraction",
+            "border_drop_prob", "box_score_mean",
+        )  # fmt: skip
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("name", "format", "difficulty", "outlier_conf_range", "noise_tail_dof"):
+                continue
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise MocapgraphError(f"{where}: {f.name} must be a finite number >= 0, got {value!r}")
+            if f.name in probabilities and value > 1:
+                raise MocapgraphError(f"{where}: {f.name} must lie in [0, 1], got {value!r}")
+        if not self.noise_tail_dof > 2:
+            raise MocapgraphError(f"{where}: noise_tail_dof must be > 2 (inf = Gaussian), got {self.noise_tail_dof!r}")
+        if self.noise_frame_correlation >= 1:
+            raise MocapgraphError(f"{where}: noise_frame_correlation must lie in [0, 1), got {self.noise_frame_correlation!r}")
+        if self.outlier_shadow_fraction + self.outlier_other_point_fraction > 1 + 1e-12:
+            raise MocapgraphError(f"{where}: outlier_shadow_fraction + outlier_other_point_fraction must not exceed 1")
+        lo, hi = self.outlier_conf_range
+        if not 0 <= lo <= hi <= 1:
+            raise MocapgraphError(f"{where}: outlier_conf_range must be (low, high) with 0 <= low <= high <= 1")
+        bad = {k: v for k, v in self.difficulty.items() if not (math.isfinite(v) and v >= 0)}
+        if bad:
+            raise MocapgraphError(f"{where}: difficulty multipliers must be finite and >= 0, got {bad}")
+
+    def without_effects(self) -> DetectorModel:
+        """The same detector with every effect off: exact projections, confidence 1, nothing missed."""
+        return replace(
+            self,
+            noise_frac_of_height=0.0, noise_floor_px=0.0, noise_tail_dof=math.inf,
+            noise_frame_correlation=0.0, conf_max=1.0, conf_noise_std=0.0, conf_threshold=0.0,
+            occluded_drop_prob=0.0, occluded_noise_mult=1.0, occluded_conf_mult=1.0,
+            frame_miss_prob=0.0, min_person_height_px=0.0, min_keypoints_in_frame=1,
+            keypoint_miss_prob=0.0, body_swap_prob=0.0, limb_swap_prob=0.0, outlier_prob=0.0,
+            border_dropout_px=0.0, box_jitter_frac_of_height=0.0, box_score_std=0.0,
+        )  # fmt: skip
+
+    def difficulties(self) -> np.ndarray:
+        """``(K,)`` noise multiplier of each point of the format."""
+        names = get_format(self.format).names
+        return np.array([self.difficulty.get(part_name(n), 1.0) for n in names])
+
+
+DETECTOR_PRESETS: dict[str, DetectorModel] = {
+    # Bottom-up, part affinity fields: noisier, drops low-confidence and occluded parts, and
+    # often swaps the legs in side views.
+    "openpose": DetectorModel(
+        name="openpose", format="openpose25",
+        noise_frac_of_height=0.012, noise_floor_px=0.7, noise_tail_dof=4.0,
+        noise_frame_correlation=0.5, conf_max=0.9, conf_error_frac_of_height=0.035,
+        conf_noise_std=0.07, conf_threshold=0.05,
+        occluded_drop_prob=0.5, occluded_noise_mult=2.0, occluded_conf_mult=0.4,
+        frame_miss_prob=0.03, min_person_height_px=40.0, min_keypoints_in_frame=4,
+        keypoint_miss_prob=0.03, body_swap_prob=0.01, limb_swap_prob=0.03,
+        limb_swap_leg_fraction=0.8, outlier_prob=0.01, border_dropout_px=8.0,
+    ),
+    # Top-down with a person detector (YOLO boxes, regional multi-person pose): always reports
+    # every point, occluded ones with a low score.
+    "alphapose": DetectorModel(
+        name="alphapose", format="coco17",
+        noise_frac_of_height=0.009, noise_floor_px=0.5, noise_tail_dof=5.0,
+        noise_frame_correlation=0.4, conf_max=0.92, conf_error_frac_of_height=0.03,
+        conf_noise_std=0.05, occluded_drop_prob=0.05, occluded_noise_mult=2.5,
+        occluded_conf_mult=0.45, frame_miss_prob=0.02, min_person_height_px=24.0,
+        keypoint_miss_prob=0.005, body_swap_prob=0.008, limb_swap_prob=0.02, outlier_prob=0.008,
+    ),
+    # Top-down HRNet-W48 on COCO: the most precise of the set.
+    "coco_hrnet": DetectorModel(
+        name="coco_hrnet", format="coco17",
+        noise_frac_of_height=0.007, noise_floor_px=0.4, noise_tail_dof=6.0,
+        noise_frame_correlation=0.4, conf_max=0.95, conf_error_frac_of_height=0.025,
+        conf_noise_std=0.04, occluded_drop_prob=0.02, occluded_noise_mult=2.0,
+        occluded_conf_mult=0.5, frame_miss_prob=0.015, min_person_height_px=20.0,
+        keypoint_miss_prob=0.003, body_swap_prob=0.005, limb_swap_prob=0.015, outlier_prob=0.005,
+    ),
+    # MediaPipe BlazePose: single-person tracker, always all 33 landmarks with a visibility
+    # score; loses the person more often and flips when the person faces away.
+    "mediapipe": DetectorModel(
+        name="mediapipe", format="blazepose33",
+        noise_frac_of_height=0.015, noise_floor_px=1.0, noise_tail_dof=3.0,
+        noise_frame_correlation=0.7, conf_max=0.97, conf_error_frac_of_height=0.04,
+        conf_noise_std=0.05, occluded_drop_prob=0.0, occluded_noise_mult=2.5,
+        occluded_conf_mult=0.3, frame_miss_prob=0.05, min_person_height_px=60.0,
+        min_keypoints_in_frame=6, keypoint_miss_prob=0.0, body_swap_prob=0.02,
+        limb_swap_prob=0.01, outlier_prob=0.005,
+    ),
+}  # fmt: skip
+"""Detector profiles with differing formats, noise and failure rates (orders of magnitude from the
+published accuracies; not fitted to any particular benchmark)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Self-occlusion
+
+
+def segment_distance(p0, p1, q0, q1) -> np.ndarray:
+    """Closest distance between segments ``[p0, p1]`` and ``[q0, q1]`` (``(..., 3)``, broadcast);
+    either may be a single point. Ericson, *Real-Time Collision Detection*, 5.1.9, vectorised."""
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a = np.einsum("...i,...i->...", d1, d1)
+    e = np.einsum("...i,...i->...", d2, d2)
+    b = np.einsum("...i,...i->...", d1, d2)
+    c = np.einsum("...i,...i->...", d1, r)
+    f = np.einsum("...i,...i->...", d2, r)
+    tiny = 1e-18
+    a_ok, e_ok = a > tiny, e > tiny
+    a_s, e_s = np.where(a_ok, a, 1.0), np.where(e_ok, e, 1.0)
+    denom = a * e - b * b
+    general = denom > 1e-12 * a * e  # not parallel
+    s = np.where(general, np.clip((b * f - c * e) / np.where(general, denom, 1.0), 0, 1), 0.0)
+    t = np.where(e_ok, (b * s + f) / e_s, 0.0)
+    s = np.where(t < 0, np.clip(-c / a_s, 0, 1), np.where(t > 1, np.clip((b - c) / a_s, 0, 1), s))
+    t = np.clip(t, 0, 1)
+    # degenerate segments: q a point, p a point
+    s = np.where(~e_ok, np.clip(-c / a_s, 0, 1), s)
+    t = np.where(~e_ok, 0.0, t)
+    t = np.where(~a_ok, np.clip(f / e_s, 0, 1) * e_ok, t)
+    s = np.where(~a_ok, 0.0, s)
+    gap = (p0 + s[..., None] * d1) - (q0 + t[..., None] * d2)
+    return np.sqrt(np.einsum("...i,...i->...", gap, gap))
+
+
+def body_capsules(joints, body_keypoints, radius_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Capsules approximating the body: ``segments (T, 22, 2, 3)`` and ``radii (22,)``.
+
+    One capsule per bone of the 22-joint skeleton (parent → child, :data:`CAPSULE_RADII_M`), then
+    the head sphere (a zero-length segment) centred between the ears; names in :data:`CAPSULE_NAMES`.
+    """
+    joints = np.asarray(joints, dtype=float)
+    kp = np.asarray(body_keypoints, dtype=float)
+    ears = kp[:, [BODY_KEYPOINT_NAMES.index("left_ear"), BODY_KEYPOINT_NAMES.index("right_ear")]]
+    head = ears.mean(axis=1)
+    children = np.arange(1, NUM_JOINTS)
+    bones = np.stack([joints[:, PARENTS[children]], joints[:, children]], axis=2)
+    sphere = np.stack([head, head], axis=1)[:, None]
+    segments = np.concatenate([bones, sphere], axis=1)
+    radii = np.array([CAPSULE_RADII_M[JOINT_NAMES[c]] for c in children] + [HEAD_SPHERE_RADIUS_M])
+    return segments, radii * radius_scale
+
+
+def occluded_by_capsules(points, camera_centres, segments, radii, clearance_m: float = 0.01) -> np.ndarray:
+    """``(T, K)`` bool: the ray camera → point passes through a capsule.
+
+    Args:
+        points: ``(T, K, 3)`` world.
+        camera_centres: ``(T, 3)`` world.
+        segments: ``(T, B, 2, 3)`` capsule axes; radii ``(B,)``.
+        clearance_m: each capsule is shrunk per point and frame so that the point lies at least
+            this far outside it, so a point is never hidden by the bone it sits on or inside.
+    """
+    P = np.asarray(points, dtype=float)[:, :, None, :]  # (T, K, 1, 3)
+    C = np.asarray(camera_centres, dtype=float)[:, None, None, :]
+    A, B = segments[:, None, :, 0], segments[:, None, :, 1]  # (T, 1, B, 3)
+    own = segment_distance(P, P, A, B)  # (T, K, B) point to capsule axis
+    ray = segment_distance(C, P, A, B)
+    r_eff = np.clip(np.minimum(radii, own - clearance_m), 0.0, None)
+    return np.any(ray < r_eff, axis=-1)
+
+
+def self_occluded(points, joints, body_keypoints, camera_centres, *, radius_scale=1.0, clearance_m=0.01) -> np.ndarray:
+    """``(T, K)`` bool: ``points (T, K, 3)`` hidden from the cameras by the body itself
+    (:func:`body_capsules` of ``joints (T, 22, 3)`` and ``body_keypoints (T, 23, 3)``)."""
+    segments, radii = body_capsules(joints, body_keypoints, radius_scale)
+    return occluded_by_capsules(points, camera_centres, segments, radii, clearance_m)
+
+
+# ---------------------------------------------------------------------------------------------
+# Simulation
+
+
+@dataclass
+class DetectionInfo:
+    """What the simulator did, per frame and point (ground truth for evaluating robustness).
+
+    Attributes:
+        pixels: ``(T, K, 2)`` exact projections (NaN for unmapped points or behind the camera).
+        depth: ``(T, K)`` camera z, metres (NaN for unmapped points).
+        in_frame: ``(T, K)`` in front of the camera and inside the image (mapped points only).
+        occluded: ``(T, K)`` self-occluded.
+        outlier: ``(T, K)`` placed elsewhere; indexed by the point's own label (before swaps),
+            whether or not it was then dropped.
+        person_detected: ``(T,)`` the person was reported at all.
+        body_swapped: ``(T,)`` left/right labels of the whole body swapped.
+        limb_swapped: ``(T,)`` ``""``, ``"arm"`` or ``"leg"``: the limb whose labels swapped.
+        person_height_px: ``(T,)`` the noise scale ``h``.
+        noise_sigma_px: ``(T, K)`` noise std per axis of each point.
+    """
+
+    pixels: np.ndarray
+    depth: np.ndarray
+    in_frame: np.ndarray
+    occluded: np.ndarray
+    outlier: np.ndarray
+    person_detected: np.ndarray
+    body_swapped: np.ndarray
+    limb_swapped: np.ndarray
+    person_height_px: np.ndarray
+    noise_sigma_px: np.ndarray
+
+
+def _frames(value, name: str, T: int, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape == shape:
+        arr = np.broadcast_to(arr, (T,) + shape)
+    if arr.shape != (T,) + shape:
+        raise MocapgraphError(f"{name}: expected shape ({T}, {', '.join(map(str, shape))}), got {arr.shape}")
+    return arr
+
+
+def _pick_other(candidates: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each (t, k), a uniformly chosen other index j != k with ``candidates[t, j]``;
+    returns ``(index (T, K), found (T, K))``."""
+    K = candidates.shape[1]
+    allowed = candidates[:, None, :] & ~np.eye(K, dtype=bool)  # (T, K, K)
+    count = allowed.sum(axis=-1)
+    rank = np.minimum(np.floor(u * count), np.maximum(count - 1, 0))
+    index = np.argmax(np.cumsum(allowed, axis=-1) > rank[..., None], axis=-1)
+    return index, count > 0
+
+
+def _nan_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis min and max over axis 1 of ``(T, N, 2)`` ignoring NaN; NaN where a frame has none."""
+    finite = np.isfinite(points)
+    lo = np.where(finite, points, np.inf).min(axis=1)
+    hi = np.where(finite, points, -np.inf).max(axis=1)
+    none = ~finite.any(axis=1)
+    return np.where(none, np.nan, lo), np.where(none, np.nan, hi)
+
+
+def _pair_index(names, parts=None) -> np.ndarray:
+    """Permutation of the format's points that swaps left and right (of ``parts`` only, if given)."""
+    perm = np.arange(len(names))
+    for i, j in left_right_pairs(names):
+        if parts is None or part_name(names[i]) in parts:
+            perm[i], perm[j] = j, i
+    # BlazePose's mouth_left / mouth_right carry the side as a suffix
+    for i, n in enumerate(names):
+        if n.endswith("_left") and n[:-5] + "_right" in names:
+            j = names.index(n[:-5] + "_right")
+            if parts is None or part_name(n) in parts:
+                perm[i], perm[j] = j, i
+    return perm
+
+
+def simulate_detections(
+    body, shape, root, pose, world_T_camera, K, distortion, image_size, model: DetectorModel, rng, *, ground_z: float = 0.0
+) -> Detector:
+    """Simulated detections of a posed body by one camera (see the module docstring).
+
+    Args:
+        body: a :class:`~mocapgraph.body.BodyModel`; ``shape`` its shape vector.
+        root: ``(T_c, 4, 4)`` world_T_root; ``pose``: ``(T_c, 21, 3)`` local axis-angle.
+        world_T_camera: ``(T_c, 4, 4)`` or ``(4, 4)`` for a static camera.
+        K: ``(3, 3)``; ``distortion``: OpenCV ``(5,)``; ``image_size``: ``(width, height)``.
+        model: the detector's error model (e.g. ``DETECTOR_PRESETS["openpose"]``).
+        rng: ``numpy.random.Generator`` (or a seed); the same state gives the same detections.
+        ground_z: height of the ground plane, for shadow outliers.
+
+    Returns:
+        a :class:`~mocapgraph.data_tools.io.capture.Detector` in the model's format: keypoints
+        ``(T_c, K, 3)`` x, y, confidence in [0, 1], NaN rows where missing; boxes ``(T_c, 5)``.
+    """
+    return simulate_detections_with_info(
+        body, shape, root, pose, world_T_camera, K, distortion, image_size, model, rng, ground_z=ground_z
+    )[0]
+
+
+def simulate_detections_with_info(
+    body, shape, root, pose, world_T_camera, K, distortion, image_size, model: DetectorModel, rng, *, ground_z: float = 0.0
+) -> tuple[Detector, DetectionInfo]:
+    """:func:`simulate_detections`, and a :class:`DetectionInfo` of what happened to each point."""
+    rng = np.random.default_rng(rng)
+    fmt = get_format(model.format)
+    root = np.asarray(root, dtype=float)
+    if root.ndim != 3 or root.shape[1:] != (4, 4):
+        raise MocapgraphError(f"root: expected shape (T, 4, 4), got {root.shape}")
+    T, Kp = root.shape[0], fmt.num_points
+    pose = _frames(pose, "pose", T, (NUM_JOINTS - 1, 3))
+    cams = _frames(world_T_camera, "world_T_camera", T, (4, 4))
+    K = np.asarray(K, dtype=float)
+    width, height = image_size
+
+    # --- every random number, in one fixed order
+    g_noise = rng.standard_normal((T, Kp, 2))
+    u_tail = rng.random((T, Kp))
+    g_conf = rng.standard_normal((T, Kp))
+    u_frame_miss = rng.random(T)
+    u_kp_miss = rng.random((T, Kp))
+    u_occ_drop = rng.random((T, Kp))
+    u_border = rng.random((T, Kp))
+    u_outlier = rng.random((T, Kp))
+    u_outlier_kind = rng.random((T, Kp))
+    u_outlier_box = rng.random((T, Kp, 2))
+    u_outlier_other = rng.random((T, Kp))
+    u_outlier_conf = rng.random((T, Kp))
+    u_body_swap = rng.random(T)
+    u_limb_swap = rng.random(T)
+    u_limb_choice = rng.random(T)
+    g_box = rng.standard_normal((T, 4))
+    g_score = rng.standard_normal(T)
+
+    # --- geometry
+    posed = body.forward(shape, root, pose)
+    mix = fmt.mix()
+    mapped = mix.sum(axis=1) > 0
+    X = np.einsum("kb,tbi->tki", mix, posed.keypoints)
+    pixels, depth, in_frame = in_frame_mask(X, cams, K, distortion, image_size)
+    in_frame &= mapped
+    pixels[:, ~mapped] = np.nan
+    depth[:, ~mapped] = np.nan
+
+    rest = body.forward(shape, np.eye(4)[None], np.zeros((1, NUM_JOINTS - 1, 3))).keypoints[0]
+    stature = float(np.ptp(rest[:, 1]))
+    _, pelvis_depth = project_points(posed.joints[:, 0], cams, K)
+    with np.errstate(divide="ignore"):
+        person_h = np.where(pelvis_depth > MIN_DEPTH_M, K[1, 1] * stature / pelvis_depth, 0.0)
+
+    # Occlusion is decided on the body keypoints; a blended point (OpenPose's neck, mid-hip: inside
+    # the body) is occluded only when all the points it blends are.
+    body_occluded = self_occluded(
+        posed.keypoints, posed.joints, posed.keypoints, cams[:, :3, 3],
+        radius_scale=model.occlusion_radius_scale, clearance_m=model.occlusion_clearance_m,
+    )  # fmt: skip
+    sources = mix > 0
+    occluded = np.all(body_occluded[:, None, :] | ~sources, axis=-1) & in_frame
+
+    detected_person = (
+        (pelvis_depth > MIN_DEPTH_M)
+        & (person_h >= model.min_person_height_px)
+        & (in_frame.sum(axis=1) >= model.min_keypoints_in_frame)
+        & (u_frame_miss >= model.frame_miss_prob)
+    )
+
+    # --- noise
+    sigma = np.hypot(model.noise_frac_of_height * person_h, model.noise_floor_px)[:, None] * model.difficulties()
+    sigma = np.where(occluded, sigma * model.occluded_noise_mult, sigma)
+    rho = model.noise_frame_correlation
+    unit = g_noise
+    if rho > 0 and T > 1:
+        unit = lfilter([math.sqrt(1 - rho * rho)], [1.0, -rho], g_noise, axis=0, zi=((1 - math.sqrt(1 - rho * rho)) * g_noise[:1]))[0]
+    if math.isfinite(model.noise_tail_dof):
+        nu = model.noise_tail_dof
+        unit = unit * np.sqrt((nu - 2) / chi2.ppf(np.clip(u_tail, 1e-300, 1.0), nu))[..., None]
+    noise = unit * sigma[..., None]
+    det = pixels + noise
+    err = np.linalg.norm(noise, axis=-1)
+
+    conf_scale = np.maximum(model.conf_error_frac_of_height * person_h[:, None], 1e-12)
+    conf = model.conf_max * np.exp(-0.5 * (err / conf_scale) ** 2) + model.conf_noise_std * g_conf
+    conf = np.where(occluded, conf * model.occluded_conf_mult, conf)
+    conf = np.clip(conf, 0.0, 1.0)
+
+    # --- outliers
+    outlier = in_frame & (u_outlier < model.outlier_prob)
+    lo, hi = _nan_bounds(np.where(in_frame[..., None], pixels, np.nan))
+    margin = (model.box_margin_frac_of_height * person_h)[:, None]
+    box_lo = np.clip(lo - margin, 0, [width, height])
+    box_hi = np.clip(hi + margin, 0, [width, height])
+    in_box = box_lo[:, None] + u_outlier_box * (box_hi - box_lo)[:, None]
+
+    mirrored = X.copy()
+    mirrored[..., 2] = 2 * ground_z - mirrored[..., 2]
+    shadow_px, _, shadow_ok = in_frame_mask(mirrored, cams, K, distortion, image_size)
+    other, other_ok = _pick_other(in_frame, u_outlier_other)
+    other_px = np.take_along_axis(pixels, other[..., None], axis=1) + noise
+    other_ok &= in_image(other_px, image_size)
+    shadow_share = model.outlier_shadow_fraction
+    use_shadow = (u_outlier_kind < shadow_share) & shadow_ok
+    use_other = (u_outlier_kind >= shadow_share) & (u_outlier_kind < shadow_share + model.outlier_other_point_fraction) & other_ok
+    placed = np.where(use_shadow[..., None], shadow_px, np.where(use_other[..., None], other_px, in_box))
+    det = np.where(outlier[..., None], placed, det)
+    c_lo, c_hi = model.outlier_conf_range
+    conf = np.where(outlier, c_lo + (c_hi - c_lo) * u_outlier_conf, conf)
+
+    # --- dropout
+    w_h = np.array([width, height], dtype=float)
+    near_border = np.any((pixels < model.border_dropout_px) | (pixels >= w_h - model.border_dropout_px), axis=-1)
+    reported = (
+        in_frame
+        & detected_person[:, None]
+        & (u_kp_miss >= model.keypoint_miss_prob)
+        & ~(occluded & (u_occ_drop < model.occluded_drop_prob))
+        & ~(near_border & (u_border < model.border_drop_prob))
+        & in_image(det, image_size)
+        & (conf > model.conf_threshold)
+    )
+    rows = np.concatenate([det, conf[..., None]], axis=-1)
+    rows[~reported] = np.nan
+
+    # --- swaps
+    body_swapped = detected_person & (u_body_swap < model.body_swap_prob)
+    limb_event = detected_person & (u_limb_swap < model.limb_swap_prob)
+    limb = np.where(u_limb_choice < model.limb_swap_leg_fraction, "leg", "arm")
+    limb_swapped = np.where(limb_event, limb, "")
+    rows[body_swapped] = rows[body_swapped][:, _pair_index(fmt.names)]
+    for name, parts in LIMB_PARTS.items():
+        sel = limb_swapped == name
+        rows[sel] = rows[sel][:, _pair_index(fmt.names, parts)]
+
+    # --- boxes
+    everything = np.concatenate([np.where(in_frame[..., None], pixels, np.nan), rows[..., :2]], axis=1)
+    lo, hi = _nan_bounds(everything)
+    side = np.maximum(0.0, model.box_margin_frac_of_height + model.box_jitter_frac_of_height * g_box) * person_h[:, None]
+    boxes = np.empty((T, 5))
+    boxes[:, 0:2] = np.clip(lo - side[:, :2], 0, w_h)
+    boxes[:, 2:4] = np.clip(hi + side[:, 2:], 0, w_h)
+    visible = (in_frame & ~occluded).sum(axis=1) / max(int(mapped.sum()), 1)
+    boxes[:, 4] = np.clip(model.box_score_mean + model.box_score_std * g_score, 0, 1) * np.sqrt(visible)
+    boxes[~detected_person] = np.nan
+
+    keypoints = fmt.normalise(rows, source=f"simulated detector {model.name!r}")
+    info = DetectionInfo(
+        pixels=pixels, depth=depth, in_frame=in_frame, occluded=occluded, outlier=outlier,
+        person_detected=detected_person, body_swapped=body_swapped, limb_swapped=limb_swapped,
+        person_height_px=person_h, noise_sigma_px=sigma,
+    )  # fmt: skip
+    return Detector(name=model.name, format=fmt.name, keypoints=keypoints, boxes=boxes), info
+
+
+__all__ = [
+    "CAPSULE_NAMES",
+    "CAPSULE_RADII_M",
+    "DEFAULT_DIFFICULTY",
+    "DETECTOR_PRESETS",
+    "DetectionInfo",
+    "DetectorModel",
+    "HEAD_SPHERE_RADIUS_M",
+    "LIMB_PARTS",
+    "MIN_DEPTH_M",
+    "body_capsules",
+    "occluded_by_capsules",
+    "part_name",
+    "segment_distance",
+    "self_occluded",
+    "simulate_detections",
+    "simulate_detections_with_info",
+]

@@ -1,0 +1,768 @@
+"""Camera pose priors from a vehicle's own sensors: the offline GPS/IMU/barometer fusion.
+
+AirCap's step 2, re-run offline. Each vehicle (UAV) gets its own GTSAM graph with a navigation
+state every ``1 / nav_rate_hz`` seconds (pose, velocity, IMU bias: :func:`~mocapgraph.factors.keys.nav_keys`)
+and a slowly drifting offset of its GPS and barometer (:func:`drift_key`):
+
+- ``CombinedImuFactor`` between consecutive states, from GTSAM's preintegration of the IMU log
+  (fed through :func:`~mocapgraph.data_tools.sim.sensors.hold_intervals`), with a bias random walk;
+- one position-fix factor per state: the GPS fixes and barometer samples nearest in time to the
+  state, carried to its time along the IMU and averaged, ``p + d_gps = z_gps`` and
+  ``p_z + d_baro = z_baro``, white noise only;
+- an exact first-order Gauss-Markov chain on the sensor offsets ``d`` (a linear factor), so that
+  errors that are correlated over a minute (multipath, weather) are not averaged away as if
+  they were white: this is what keeps the covariances honest;
+- priors on the first state: orientation (weak), velocity (weak), bias, and the offsets'
+  stationary distribution.
+
+Solved in batch by Levenberg-Marquardt (:func:`~mocapgraph.graphs.solver.levenberg_marquardt`,
+driven from Python so that the CustomFactor callbacks stay O(N)); covariances from GTSAM's
+marginals. A camera
+pose at a frame time is the IMU prediction from the previous navigation state, times the mount:
+``world_T_camera = world_T_vehicle · vehicle_T_camera``. ``docs/vehicle-fusion.md`` has the
+details and the measured accuracy.
+
+:func:`online_track` gives the vehicle's own (onboard, online) estimate at the camera frames
+instead, and :func:`camera_priors` does either for every camera of a capture that can have one.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from mocapgraph.body.rotations import rotvec_to_matrix, skew
+from mocapgraph.data_tools.io.capture import Camera, Capture
+from mocapgraph.data_tools.sim.sensors import GRAVITY_M_S2, hold_intervals
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.factors.keys import drift_key, nav_keys
+from mocapgraph.graphs.solver import SolverOptions, levenberg_marquardt, marginal_covariances
+
+SOURCES = ("fused", "online")
+
+_GRAVITY_WORLD = np.array([0.0, 0.0, -GRAVITY_M_S2])
+
+
+@dataclass(frozen=True)
+class FusionNoise:
+    """Noise model of the vehicle fusion graph (defaults: a consumer MEMS IMU and a
+    single-frequency GPS on a small multirotor; ``docs/vehicle-fusion.md`` discusses them).
+
+    The GPS and barometer logs carry their own 1σ (``sigma``), the *total* error. The graph
+    splits it into a drifting part (a first-order Gauss-Markov offset with the std and
+    correlation time below) and a white part ``sqrt(sigma² − drift²)``, floored.
+
+    Attributes:
+        accel_noise_m_s2_sqrt_hz: accelerometer white-noise density.
+        gyro_noise_rad_s_sqrt_hz: gyroscope white-noise density.
+        integration_noise_m_sqrt_s: GTSAM's integration uncertainty (position from velocity);
+            also keeps the batch system well conditioned (at 1e-4 GTSAM's Cholesky reports an
+            indeterminate system).
+        accel_bias_walk_m_s2_sqrt_s: accelerometer bias random-walk density.
+        gyro_bias_walk_rad_s_sqrt_s: gyroscope bias random-walk density.
+        accel_bias_prior_m_s2: std of the accelerometer bias at the first state (prior mean 0).
+        gyro_bias_prior_rad_s: std of the gyroscope bias at the first state (prior mean 0).
+        gps_drift_horizontal_m: stationary std of the GPS offset, east and north.
+        gps_drift_vertical_m: stationary std of the GPS offset, up.
+        gps_drift_time_s: correlation time of the GPS offset.
+        baro_drift_m: stationary std of the barometer offset from the world's z (set it large
+            when the barometer is not referenced to the GPS altitude).
+        baro_drift_time_s: correlation time of the barometer offset.
+        min_white_sigma_m: floor of the white std of one GPS fix or barometer sample.
+        initial_rotation_sigma_deg: prior std of the first orientation when it comes from the
+            onboard estimate (``self_pose``), per axis: about the estimate's largest error, i.e.
+            weaker than its typical error (:class:`OnlineNoise`).
+        aligned_rotation_sigma_deg: the same when it comes from aligning the IMU to the GPS track.
+        initial_velocity_sigma_m_s: prior std of the first velocity (about its initial guess).
+        initial_position_sigma_m: prior std of the first position (the GPS fixes pin it).
+    """
+
+    accel_noise_m_s2_sqrt_hz: float = 2e-3
+    gyro_noise_rad_s_sqrt_hz: float = 2e-4
+    integration_noise_m_sqrt_s: float = 1e-3
+    accel_bias_walk_m_s2_sqrt_s: float = 1e-3
+    gyro_bias_walk_rad_s_sqrt_s: float = 1e-4
+    accel_bias_prior_m_s2: float = 0.1
+    gyro_bias_prior_rad_s: float = 0.01
+    gps_drift_horizontal_m: float = 0.5
+    gps_drift_vertical_m: float = 1.0
+    gps_drift_time_s: float = 60.0
+    baro_drift_m: float = 0.5
+    baro_drift_time_s: float = 120.0
+    min_white_sigma_m: float = 0.05
+    initial_rotation_sigma_deg: float = 1.5
+    aligned_rotation_sigma_deg: float = 30.0
+    initial_velocity_sigma_m_s: float = 2.0
+    initial_position_sigma_m: float = 10.0
+
+    def drift_sigma(self) -> np.ndarray:
+        """Stationary std of the offset state ``(4,)``: GPS east, north, up; barometer."""
+        h, v = self.gps_drift_horizontal_m, self.gps_drift_vertical_m
+        return np.maximum(np.array([h, h, v, self.baro_drift_m]), 1e-3)
+
+    def drift_time(self) -> np.ndarray:
+        """Correlation times ``(4,)`` of the offset state, seconds."""
+        return np.array([self.gps_drift_time_s] * 3 + [self.baro_drift_time_s])
+
+
+@dataclass(frozen=True)
+class OnlineNoise:
+    """Typical error of the vehicle's onboard (online) estimate, the constant covariance of
+    :func:`online_track`: 1σ per axis of the vehicle's orientation and position.
+
+    The defaults fit an EKF that fuses GPS, IMU and barometer on board and whose error stays
+    within about 0.3 m and 1.5° (the simulator's ``SelfPoseError`` bounds).
+    """
+
+    rotation_sigma_deg: float = 1.0
+    position_sigma_m: float = 0.2
+
+
+@dataclass
+class VehicleTrack:
+    """A camera's poses at its frame times, from its vehicle's sensors.
+
+    Attributes:
+        times: ``(T_c,)`` seconds, the camera's frame timestamps.
+        world_T_camera: ``(T_c, 4, 4)``.
+        covariance: ``(T_c, 6, 6)`` marginal covariance of each pose in GTSAM's Pose3 tangent
+            (rotation first, then translation, both in the camera frame: the pose is
+            ``world_T_camera · Exp(ξ)``).
+        source: ``"fused"`` (offline fusion) or ``"online"`` (the onboard estimate).
+        info: what the solve did (states, iterations, errors, seconds, …).
+    """
+
+    times: np.ndarray
+    world_T_camera: np.ndarray
+    covariance: np.ndarray
+    source: str
+    info: dict = field(default_factory=dict)
+
+    def position_covariance_world(self) -> np.ndarray:
+        """``(T_c, 3, 3)`` covariance of the camera positions in the world frame."""
+        R = self.world_T_camera[:, :3, :3]
+        return R @ self.covariance[:, 3:, 3:] @ np.swapaxes(R, -1, -2)
+
+
+# ---------------------------------------------------------------------------------------------
+# Small geometry helpers
+
+
+def _interpolate_poses(t_log: np.ndarray, R_log: np.ndarray, p_log: np.ndarray, t: np.ndarray):
+    """Rotations (slerp) and positions (linear) of a pose log at ``t``, held beyond its ends."""
+    tq = np.clip(t, t_log[0], t_log[-1])
+    if len(t_log) == 1:
+        return np.repeat(R_log, len(t), axis=0), np.repeat(p_log, len(t), axis=0)
+    R = Slerp(t_log, Rotation.from_matrix(R_log))(tq).as_matrix()
+    p = np.stack([np.interp(tq, t_log, p_log[:, i]) for i in range(3)], axis=-1)
+    return R, p
+
+
+def _nearest(sorted_times: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Index of the element of ``sorted_times`` nearest to each ``t`` (the earlier one on a tie)."""
+    t = np.asarray(t, dtype=float)
+    if len(sorted_times) == 1:
+        return np.zeros(t.shape, dtype=int)
+    right = np.clip(np.searchsorted(sorted_times, t), 1, len(sorted_times) - 1)
+    left = right - 1
+    return np.where(t - sorted_times[left] <= sorted_times[right] - t, left, right)
+
+
+def _mount_adjoint(mount: np.ndarray) -> np.ndarray:
+    """``Ad(mount⁻¹)``: maps a vehicle-pose tangent ξ to the camera's, ``T Exp(ξ) M = T M Exp(Ad ξ)``."""
+    return gtsam.Pose3(np.linalg.inv(mount)).AdjointMap()
+
+
+def _project_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation nearest to ``M`` (Frobenius norm)."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+# ---------------------------------------------------------------------------------------------
+# The online track
+
+
+def online_track(camera: Camera, *, noise: OnlineNoise = OnlineNoise()) -> VehicleTrack:
+    """The onboard estimate (``self_pose`` log) at the camera's frames, times the mount.
+
+    Rotations are slerped and positions interpolated linearly between log samples, and held
+    beyond the log's ends. The covariance is the constant :class:`OnlineNoise` of the vehicle
+    pose carried to the camera by the mount's adjoint.
+    """
+    log = camera.sensors.get("self_pose")
+    if log is None or camera.mount is None:
+        missing = "a self_pose log" if log is None else "a mount (vehicle_T_camera)"
+        raise MocapgraphError(f"camera {camera.name!r}: no onboard pose estimate without {missing}")
+    R, p = _interpolate_poses(log["t"], log["rotation"], log["position"], camera.timestamps)
+    vehicle = np.tile(np.eye(4), (camera.num_frames, 1, 1))
+    vehicle[:, :3, :3], vehicle[:, :3, 3] = R, p
+    sigma = np.r_[np.full(3, math.radians(noise.rotation_sigma_deg)), np.full(3, noise.position_sigma_m)]
+    Ad = _mount_adjoint(camera.mount)
+    cov = Ad @ np.diag(sigma**2) @ Ad.T
+    cov = 0.5 * (cov + cov.T)
+    return VehicleTrack(
+        times=camera.timestamps.copy(),
+        world_T_camera=vehicle @ camera.mount,
+        covariance=np.tile(cov, (camera.num_frames, 1, 1)),
+        source="online",
+        info={"rotation_sigma_deg": noise.rotation_sigma_deg, "position_sigma_m": noise.position_sigma_m},
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# The fusion graph: inputs
+
+
+@dataclass
+class _Imu:
+    """The IMU log as hold intervals: interval k spans ``[t[k], t[k+1]]``."""
+
+    t: np.ndarray
+    accel: np.ndarray  # (N-1, 3) held specific force
+    gyro: np.ndarray  # (N-1, 3) held rate
+    dt: np.ndarray  # (N-1,)
+
+    def integrate(self, pim, k0: int, t_end: float) -> None:
+        """Integrate from sample ``k0`` to time ``t_end`` (the last interval possibly partial,
+        extrapolated with the last interval's measurement beyond the log)."""
+        k = k0
+        last = len(self.dt) - 1
+        while k <= last and self.t[k + 1] <= t_end + 1e-12:
+            pim.integrateMeasurement(self.accel[k], self.gyro[k], self.dt[k])
+            k += 1
+        rest = t_end - self.t[k]
+        if rest > 1e-9:
+            j = min(k, last)
+            pim.integrateMeasurement(self.accel[j], self.gyro[j], rest)
+
+
+def _state_indices(t_imu: np.ndarray, rate_hz: float) -> np.ndarray:
+    """IMU sample indices of the navigation states: nearest to a ``rate_hz`` grid, last sample included."""
+    span = t_imu[-1] - t_imu[0]
+    grid = t_imu[0] + np.arange(int(math.floor(span * rate_hz + 1e-9)) + 1) / rate_hz
+    idx = np.unique(_nearest(t_imu, grid))
+    last = len(t_imu) - 1
+    if idx[-1] != last:
+        # Keep the final state on the last sample; merge it with a state less than half a period away.
+        if len(idx) > 1 and t_imu[last] - t_imu[idx[-1]] < 0.5 / rate_hz:
+            idx[-1] = last
+        else:
+            idx = np.r_[idx, last]
+    return idx
+
+
+def _gps_fixes(gps: dict[str, np.ndarray]):
+    """Distinct fixes of a GPS log (a log repeats the latest fix on every row): times, positions, sigmas."""
+    pos = gps["position"]
+    new = np.r_[True, np.any(pos[1:] != pos[:-1], axis=1)]
+    return gps["t"][new], pos[new], gps["sigma"][new]
+
+
+def _white_sigma(total: np.ndarray, drift: np.ndarray, floor: float) -> np.ndarray:
+    return np.sqrt(np.maximum(total**2 - drift**2, floor**2))
+
+
+def _nearest_states(state_t: np.ndarray, t: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Measurements within half a state period of a state: their mask and nearest state."""
+    near = _nearest(state_t, t)
+    return np.abs(t - state_t[near]) <= 0.5 / rate_hz + 1e-9, near
+
+
+class _Strapdown:
+    """The initial guess integrated through the IMU from each state to the next: where the
+    vehicle moves between states, to carry a measurement from its own time to a state's."""
+
+    def __init__(self, imu: _Imu, idx: np.ndarray, R: np.ndarray, p: np.ndarray, v: np.ndarray):
+        self.imu, self.idx = imu, idx
+        n = len(imu.t)
+        self.p, self.v, self.a = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        self.end = np.zeros((len(idx), 3))  # position at state m + 1 integrated from state m
+        steps = rotvec_to_matrix(imu.gyro * imu.dt[:, None])
+        for m in range(len(idx) - 1):
+            Rk, pk, vk = R[m], p[m].copy(), v[m].copy()
+            for k in range(idx[m], idx[m + 1]):
+                a = Rk @ imu.accel[k] + _GRAVITY_WORLD
+                self.p[k], self.v[k], self.a[k] = pk, vk, a
+                dt = imu.dt[k]
+                pk = pk + vk * dt + 0.5 * a * dt * dt
+                vk = vk + a * dt
+                Rk = Rk @ steps[k]
+            self.end[m] = pk
+        self.p[idx[-1]], self.state_p = p[-1], p
+
+    def displacement(self, t: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """``p(t_state) − p(t)`` along the integration of the interval holding ``t`` ``(n, 3)``;
+        ``state`` must be an end of that interval (the nearest state)."""
+        idx, t_imu = self.idx, self.imu.t
+        state_t = t_imu[idx]
+        m = np.clip(np.searchsorted(state_t, t, side="right") - 1, 0, len(idx) - 2)
+        m = np.where(state < m, state, np.where(state > m + 1, state - 1, m))
+        k = np.clip(np.searchsorted(t_imu, t, side="right") - 1, idx[m], idx[m + 1] - 1)
+        tau = (t - t_imu[k])[:, None]
+        at_t = self.p[k] + self.v[k] * tau + 0.5 * self.a[k] * tau**2
+        at_state = np.where((state == m)[:, None], self.state_p[m], self.end[m])
+        return at_state - at_t
+
+
+def _group_measurements(near: np.ndarray, values: np.ndarray, sigma: np.ndarray, shift: np.ndarray, states: int):
+    """Per state: the mean of the measurements assigned to it (``near``, sorted), each moved to
+    the state's time by ``shift``, and the std of that mean (white noise only:
+    ``sqrt(mean σ² / count)``). Returns ``{state index: (mean (D,), sigma (D,), count)}``."""
+    moved = values + shift
+    count = np.bincount(near, minlength=states)
+    out = {}
+    for n in np.flatnonzero(count):
+        sel = slice(np.searchsorted(near, n), np.searchsorted(near, n, side="right"))
+        out[int(n)] = (moved[sel].mean(axis=0), np.sqrt(np.mean(sigma[sel] ** 2, axis=0) / count[n]), int(count[n]))
+    return out
+
+
+def _fix_factor(pose_key: int, offset_key: int, z: np.ndarray, A_p: np.ndarray, A_d: np.ndarray, sigma: np.ndarray):
+    """``A_p p + A_d d − z`` with ``p`` the pose's position and ``d`` the sensor offsets.
+
+    Jacobians: GTSAM retracts a Pose3 as ``(R Exp(ω), p + R v)``, so ``∂p/∂ξ = [0, R]``.
+    """
+    rows = len(z)
+
+    def error(_factor, values, H):
+        pose = values.atPose3(pose_key)
+        d = values.atVector(offset_key)
+        residual = A_p @ pose.translation() + A_d @ d - z
+        if H is not None:
+            H[0] = np.hstack([np.zeros((rows, 3)), A_p @ pose.rotation().matrix()])
+            H[1] = A_d
+        return residual
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(sigma), [pose_key, offset_key], error)
+
+
+def _offset_chain_factor(key_a: int, key_b: int, dt: float, noise: FusionNoise):
+    """Exact discrete Gauss-Markov step ``d_b = Φ d_a + w``, ``w ~ N(0, σ²(1 − Φ²))`` (linear)."""
+    phi = np.exp(-dt / noise.drift_time())
+    q = noise.drift_sigma() * np.sqrt(np.maximum(1.0 - phi**2, 1e-12))
+    linear = gtsam.JacobianFactor(key_a, -np.diag(phi), key_b, np.eye(4), np.zeros(4), gtsam.noiseModel.Diagonal.Sigmas(q))
+    zero = gtsam.Values()
+    zero.insert(key_a, np.zeros(4))
+    zero.insert(key_b, np.zeros(4))
+    return gtsam.LinearContainerFactor(linear, zero)
+
+
+def _preintegration_params(noise: FusionNoise):
+    params = gtsam.PreintegrationCombinedParams.MakeSharedU(GRAVITY_M_S2)
+    I = np.eye(3)
+    params.setAccelerometerCovariance(I * noise.accel_noise_m_s2_sqrt_hz**2)
+    params.setGyroscopeCovariance(I * noise.gyro_noise_rad_s_sqrt_hz**2)
+    params.setIntegrationCovariance(I * noise.integration_noise_m_sqrt_s**2)
+    params.setBiasAccCovariance(I * noise.accel_bias_walk_m_s2_sqrt_s**2)
+    params.setBiasOmegaCovariance(I * noise.gyro_bias_walk_rad_s_sqrt_s**2)
+    return params
+
+
+# ---------------------------------------------------------------------------------------------
+# Initial values
+
+
+def _initial_from_self_pose(log, state_t: np.ndarray):
+    """Rotations, positions and velocities (central differences) of the onboard estimate."""
+    R, p = _interpolate_poses(log["t"], log["rotation"], log["position"], state_t)
+    h = 0.05
+    _, ahead = _interpolate_poses(log["t"], log["rotation"], log["position"], state_t + h)
+    _, behind = _interpolate_poses(log["t"], log["rotation"], log["position"], state_t - h)
+    span = (np.clip(state_t + h, log["t"][0], log["t"][-1]) - np.clip(state_t - h, log["t"][0], log["t"][-1]))[:, None]
+    v = (ahead - behind) / np.maximum(span, 1e-9)
+    return R, p, v
+
+
+def _gravity_aligned(accel: np.ndarray) -> np.ndarray:
+    """world_R_body with body z along the mean specific force ``accel (n, 3)`` and yaw 0."""
+    z = accel.mean(axis=0)
+    z = z / np.linalg.norm(z)
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    if np.linalg.norm(x) < 1e-3:
+        x = np.array([0.0, 1.0, 0.0]) - z[1] * z
+    x /= np.linalg.norm(x)
+    # Rows: the world axes in body coordinates.
+    return np.stack([x, np.cross(z, x), z])
+
+
+def _align_window(tau_fix, p_fix, tau_samples, dp, tilt: np.ndarray, yaw_starts: int = 8, iterations: int = 10):
+    """Start pose of a window from its GPS fixes: least squares over ``R, p₀, v₀`` of
+    ``z(τ) = p₀ + v₀ τ + ½ g τ² + R S(τ)``, or None when the window cannot tell.
+
+    ``S(τ)`` (``dp`` at ``tau_samples``) is the double integral of the specific force in the
+    window's first body frame. Gauss-Newton on ``R`` (``R Exp(δ)``, so ``∂(R S)/∂δ = −R [S]×``),
+    with ``p₀, v₀`` solved alongside, from ``yaw_starts`` headings around the gravity-aligned
+    ``tilt``; the lowest cost wins. A multirotor's specific force is nearly along its z axis, so
+    heading shows only through the tilt changes over the window: too little motion, no answer.
+    """
+    if len(tau_fix) < 8 or tau_samples[-1] < 1.0:
+        return None
+    S = np.stack([np.interp(tau_fix, tau_samples, dp[:, i]) for i in range(3)], axis=-1)
+    target = p_fix - 0.5 * _GRAVITY_WORLD * tau_fix[:, None] ** 2
+    A = np.zeros((len(tau_fix), 3, 9))
+    A[:, :, :3] = np.eye(3)
+    A[:, :, 3:6] = tau_fix[:, None, None] * np.eye(3)
+    base = A.reshape(-1, 9)[:, :6].copy()  # the p₀, v₀ columns
+    best = None
+    for yaw in 2.0 * np.pi * np.arange(yaw_starts) / yaw_starts:
+        R = rotvec_to_matrix(np.array([0.0, 0.0, yaw])) @ tilt
+        for _ in range(iterations):
+            predicted = S @ R.T
+            A[:, :, 6:] = -R @ skew(S)
+            x, *_ = np.linalg.lstsq(A.reshape(-1, 9), (target - predicted).reshape(-1), rcond=None)
+            R = R @ rotvec_to_matrix(x[6:])
+            if np.linalg.norm(x[6:]) < 1e-6:
+                break
+        x, *_ = np.linalg.lstsq(base, (target - S @ R.T).reshape(-1), rcond=None)
+        cost = np.sum(((target - S @ R.T).reshape(-1) - base @ x) ** 2)
+        if best is None or cost < best[0]:
+            best = (cost, R, x[:3], x[3:6])
+    _, R, p0, v0 = best
+    # The heading must be determined: the fit's sensitivity to a turn about the vertical, with
+    # p₀ and v₀ free, must beat the GPS noise (σ_yaw ≈ 1 m / ‖P⊥ j‖ under ~0.3 rad).
+    j = np.cross([0.0, 0.0, 1.0], S @ R.T).reshape(-1)
+    j_perp = j - base @ np.linalg.lstsq(base, j, rcond=None)[0]
+    if np.linalg.norm(j_perp) < 3.0:
+        return None
+    return R, p0, v0
+
+
+def _initial_from_alignment(imu: _Imu, idx: np.ndarray, fixes, window_s: float = 5.0):
+    """Rotations, positions and velocities at the states from the IMU aligned to the GPS track.
+
+    Within each window of about ``window_s`` seconds, the gyro gives the attitude relative to the
+    window's first state and the double integral ``S(τ)`` of the specific force in that frame;
+    :func:`_align_window` fits the window's start attitude, position and velocity to its GPS
+    fixes. Windows restart the gyro integration, so its drift stays bounded. A window that cannot
+    be solved (too few fixes, too little motion) continues the previous window's end state; the
+    first one starts from the mean specific force (gravity alignment, yaw 0) at the first fix.
+    Biases are ignored: this only seeds LM.
+    """
+    fix_t, fix_p, _ = fixes
+    steps = rotvec_to_matrix(imu.gyro * imu.dt[:, None])
+    state_t = imu.t[idx]
+    last = len(idx) - 1
+    R_out, p_out, v_out = np.empty((len(idx), 3, 3)), np.empty((len(idx), 3)), np.empty((len(idx), 3))
+    start, carry = 0, None
+    while True:
+        end = int(np.searchsorted(state_t, state_t[start] + window_s, side="right")) - 1
+        end = min(max(end, start + 1), last)
+        if state_t[last] - state_t[end] < 0.5 * window_s:
+            end = last  # no short window at the end
+        k0, k1 = idx[start], idx[end]
+        count = k1 - k0 + 1
+        rel = np.empty((count, 3, 3))
+        rel[0] = np.eye(3)
+        dv, dp = np.zeros((count, 3)), np.zeros((count, 3))
+        for j in range(count - 1):
+            k = k0 + j
+            a = rel[j] @ imu.accel[k]
+            dp[j + 1] = dp[j] + dv[j] * imu.dt[k] + 0.5 * a * imu.dt[k] ** 2
+            dv[j + 1] = dv[j] + a * imu.dt[k]
+            rel[j + 1] = rel[j] @ steps[k]
+        tau_samples = imu.t[k0 : k1 + 1] - imu.t[k0]
+        sel = (fix_t >= imu.t[k0]) & (fix_t <= imu.t[k1])
+        tilt = carry[0] if carry is not None else _gravity_aligned(imu.accel[k0 : max(k1, k0 + 1)])
+        solved = _align_window(fix_t[sel] - imu.t[k0], fix_p[sel], tau_samples, dp, tilt)
+        if solved is not None:
+            R0, p0, v0 = solved
+        elif carry is not None:
+            R0, p0, v0 = carry
+        else:
+            R0, v0 = tilt, np.zeros(3)
+            p0 = fix_p[_nearest(fix_t, state_t[:1])[0]]
+        for n in range(start, end + 1):
+            j = idx[n] - k0
+            tau = tau_samples[j]
+            R_out[n] = R0 @ rel[j]
+            v_out[n] = v0 + _GRAVITY_WORLD * tau + R0 @ dv[j]
+            p_out[n] = p0 + v0 * tau + 0.5 * _GRAVITY_WORLD * tau**2 + R0 @ dp[j]
+        if end == last:
+            return R_out, p_out, v_out
+        carry = (R_out[end], p_out[end], v_out[end])
+        start = end
+
+
+# ---------------------------------------------------------------------------------------------
+# The fusion graph
+
+
+def _require(camera: Camera, kinds: tuple[str, ...]) -> None:
+    missing = [k for k in kinds if k not in camera.sensors]
+    if missing:
+        raise MocapgraphError(f"camera {camera.name!r}: no {' and no '.join(missing)} log")
+    if camera.mount is None:
+        raise MocapgraphError(f"camera {camera.name!r}: no mount (vehicle_T_camera) to carry the vehicle pose to the camera")
+
+
+def _measurements(camera: Camera, imu: _Imu, idx: np.ndarray, fixes, initial, noise: FusionNoise, rate_hz: float):
+    """GPS and barometer measurements per state: ``{state: (mean, sigma, count)}`` each.
+
+    The GPS fixes and barometer samples within half a period of a state, carried to its time
+    along the IMU-integrated initial guess (:class:`_Strapdown`), averaged; their std is the
+    white part only (the drift is the offset state's).
+    """
+    state_t = imu.t[idx]
+    strapdown = _Strapdown(imu, idx, *initial)
+    drift = noise.drift_sigma()
+    keep, near = _nearest_states(state_t, fixes[0], rate_hz)
+    white = _white_sigma(fixes[2][keep], drift[:3], noise.min_white_sigma_m)
+    shift = strapdown.displacement(fixes[0][keep], near[keep])
+    gps = _group_measurements(near[keep], fixes[1][keep], white, shift, len(idx))
+    if not gps:
+        raise MocapgraphError(f"camera {camera.name!r}: no GPS fix within the IMU log [{imu.t[0]:.3f}, {imu.t[-1]:.3f}] s")
+    baro = {}
+    if "baro" in camera.sensors:
+        log = camera.sensors["baro"]
+        keep, near = _nearest_states(state_t, log["t"], rate_hz)
+        white = _white_sigma(np.asarray(log["sigma"])[keep], drift[3], noise.min_white_sigma_m)
+        shift = strapdown.displacement(log["t"][keep], near[keep])[:, 2:]
+        baro = _group_measurements(near[keep], log["altitude"][keep, None], white[:, None], shift, len(idx))
+    return gps, baro
+
+
+_A_GPS = (np.eye(3), np.hstack([np.eye(3), np.zeros((3, 1))]))
+_A_BARO = (np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 0.0, 1.0]]))
+"""``(A_p, A_d)`` of :func:`_fix_factor` for a GPS fix and for a barometer sample."""
+
+
+def _graph(imu: _Imu, idx: np.ndarray, initial, gps: dict, baro: dict, noise: FusionNoise):
+    """The fusion graph without the first pose's prior (:func:`_solve` adds it), and its initial values."""
+    R_init, p_init, v_init = initial
+    state_t = imu.t[idx]
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    zero_bias = gtsam.imuBias.ConstantBias()
+    _, v0, b0 = nav_keys(0)
+    graph.add(gtsam.PriorFactorVector(v0, v_init[0], gtsam.noiseModel.Isotropic.Sigma(3, noise.initial_velocity_sigma_m_s)))
+    bias_sigma = np.r_[np.full(3, noise.accel_bias_prior_m_s2), np.full(3, noise.gyro_bias_prior_rad_s)]
+    graph.add(gtsam.PriorFactorConstantBias(b0, zero_bias, gtsam.noiseModel.Diagonal.Sigmas(bias_sigma)))
+    graph.add(gtsam.PriorFactorVector(drift_key(0), np.zeros(4), gtsam.noiseModel.Diagonal.Sigmas(noise.drift_sigma())))
+    params = _preintegration_params(noise)
+    for n in range(len(idx)):
+        x, v, b = nav_keys(n)
+        values.insert(x, gtsam.Pose3(gtsam.Rot3(_project_rotation(R_init[n])), p_init[n]))
+        values.insert(v, v_init[n])
+        values.insert(b, zero_bias)
+        values.insert(drift_key(n), np.zeros(4))
+        if n > 0:
+            xp, vp, bp = nav_keys(n - 1)
+            pim = gtsam.PreintegratedCombinedMeasurements(params, zero_bias)
+            imu.integrate(pim, idx[n - 1], state_t[n])
+            graph.add(gtsam.CombinedImuFactor(xp, vp, x, v, bp, b, pim))
+            graph.add(_offset_chain_factor(drift_key(n - 1), drift_key(n), state_t[n] - state_t[n - 1], noise))
+        parts = [(m, A) for m, A in ((gps.get(n), _A_GPS), (baro.get(n), _A_BARO)) if m is not None]
+        if parts:
+            z = np.concatenate([m[0] for m, _ in parts])
+            sigma = np.concatenate([m[1] for m, _ in parts])
+            A_p = np.vstack([A[0] for _, A in parts])
+            A_d = np.vstack([A[1] for _, A in parts])
+            graph.add(_fix_factor(x, drift_key(n), z, A_p, A_d, sigma))
+    return graph, values
+
+
+def _vehicle_poses(imu: _Imu, idx: np.ndarray, result: gtsam.Values, times: np.ndarray) -> np.ndarray:
+    """``(T, 4, 4)`` world_T_vehicle at ``times``: the IMU prediction from the previous state
+    with its bias; before the first state, constant velocity and orientation."""
+    state_t = imu.t[idx]
+    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY_M_S2)
+    previous = np.clip(np.searchsorted(state_t, times, side="right") - 1, 0, len(idx) - 1)
+    out = np.empty((len(times), 4, 4))
+    for f, (t, n) in enumerate(zip(times, previous)):
+        x, v, b = nav_keys(int(n))
+        pose, vel = result.atPose3(x), result.atVector(v)
+        if t < state_t[0]:
+            out[f] = gtsam.Pose3(pose.rotation(), pose.translation() + vel * (t - state_t[0])).matrix()
+        elif t - state_t[n] < 1e-9:
+            out[f] = pose.matrix()
+        else:
+            bias = result.atConstantBias(b)
+            pim = gtsam.PreintegratedImuMeasurements(params, bias)
+            imu.integrate(pim, idx[n], t)
+            out[f] = pim.predict(gtsam.NavState(pose, vel), bias).pose().matrix()
+    return out
+
+
+_HEADING_STARTS = 8
+"""Headings tried when the start comes from aligning the IMU to the GPS track (see :func:`_solve`)."""
+
+
+def _solve(graph, values, states: int, position, rotation_sigma: float, noise: FusionNoise, headings: int, max_iterations: int):
+    """Add the first pose's prior and solve; returns ``(graph with the prior, SolveResult)``.
+
+    The prior is centred on the initial guess. With ``headings > 1`` the whole initial guess is
+    also turned about the vertical by ``k·360°/headings`` (each with its own prior): a short GPS
+    track may leave the heading in a wrong basin, and the lowest final cost picks the basin.
+
+    GTSAM's own LM would copy the whole Values for every CustomFactor callback (O(N²) per
+    iteration, docs/solver.md); the Python-driven loop hands GTSAM Python-owned Values instead.
+    """
+    x0 = nav_keys(0)[0]
+    sigma = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, rotation_sigma), np.full(3, noise.initial_position_sigma_m)])
+    options = SolverOptions(max_iterations=max_iterations, relative_tolerance=1e-6)
+    # Each heading gets a few iterations; the best one then runs to convergence.
+    screen = SolverOptions(max_iterations=min(max_iterations, 8), relative_tolerance=1e-6) if headings > 1 else options
+    best = None
+    for k in range(headings):
+        turn = gtsam.Rot3.Rz(2.0 * math.pi * k / headings)
+        start = gtsam.Values(values)
+        if k:
+            for n in range(states):
+                x = nav_keys(n)[0]
+                pose = values.atPose3(x)
+                start.update(x, gtsam.Pose3(turn.compose(pose.rotation()), pose.translation()))
+        candidate = gtsam.NonlinearFactorGraph(graph)
+        candidate.add(gtsam.PriorFactorPose3(x0, gtsam.Pose3(start.atPose3(x0).rotation(), position), sigma))
+        solved = levenberg_marquardt(candidate, start, screen)
+        if best is None or solved.error < best[1].error:
+            best = (candidate, solved)
+    candidate, solved = best
+    if headings > 1 and not solved.converged:
+        more = levenberg_marquardt(candidate, solved.values, options)
+        more.iterations += solved.iterations
+        solved = more
+    return candidate, solved
+
+
+def fuse_vehicle(
+    camera: Camera,
+    *,
+    nav_rate_hz: float = 10.0,
+    noise: FusionNoise = FusionNoise(),
+    max_extrapolation_s: float = 0.1,
+    max_iterations: int = 50,
+    verbose: bool = True,
+) -> VehicleTrack:
+    """Offline GPS/IMU/barometer fusion of the camera's vehicle; its poses at the camera frames.
+
+    Args:
+        camera: needs ``mount`` and ``imu`` and ``gps`` logs; ``baro`` and ``self_pose`` are used
+            when present (``self_pose`` only to start: initial values and the first orientation).
+        nav_rate_hz: navigation states per second (snapped to IMU samples; one more on the last).
+        noise: the noise model (:class:`FusionNoise`).
+        max_extrapolation_s: camera frames may lie this far outside the IMU log (constant
+            velocity and orientation there); farther raises.
+        max_iterations: Levenberg-Marquardt iterations.
+        verbose: one progress line on stderr.
+
+    Returns:
+        ``VehicleTrack(source="fused")``; its covariance is each frame's nearest navigation
+        state's marginal covariance carried to the camera by the mount's adjoint.
+    """
+    if not nav_rate_hz > 0:
+        raise MocapgraphError(f"nav_rate_hz: must be positive, got {nav_rate_hz}")
+    _require(camera, ("imu", "gps"))
+    clock = time.perf_counter()
+    imu_log = camera.sensors["imu"]
+    if len(imu_log["t"]) < 2:
+        raise MocapgraphError(f"camera {camera.name!r}: the IMU log needs at least 2 samples")
+    accel, gyro, dt = hold_intervals(imu_log)
+    imu = _Imu(np.asarray(imu_log["t"], dtype=float), accel, gyro, dt)
+    frames = camera.timestamps
+    outside = np.maximum(imu.t[0] - frames, frames - imu.t[-1]).max(initial=-np.inf)
+    if outside > max_extrapolation_s:
+        raise MocapgraphError(
+            f"camera {camera.name!r}: frames span [{frames[0]:.3f}, {frames[-1]:.3f}] s but the IMU log only "
+            f"[{imu.t[0]:.3f}, {imu.t[-1]:.3f}] s (more than {max_extrapolation_s} s outside)"
+        )
+    idx = _state_indices(imu.t, nav_rate_hz)
+    if len(idx) < 2:
+        raise MocapgraphError(f"camera {camera.name!r}: the IMU log is too short for two navigation states")
+    state_t = imu.t[idx]
+    fixes = _gps_fixes(camera.sensors["gps"])
+
+    self_pose = camera.sensors.get("self_pose")
+    if self_pose is not None:
+        R_init, p_init, v_init = _initial_from_self_pose(self_pose, state_t)
+        rotation_sigma, start = noise.initial_rotation_sigma_deg, "self_pose"
+    else:
+        R_init, p_init, v_init = _initial_from_alignment(imu, idx, fixes)
+        rotation_sigma, start = noise.aligned_rotation_sigma_deg, "IMU aligned to GPS"
+
+    gps, baro = _measurements(camera, imu, idx, fixes, (R_init, p_init, v_init), noise, nav_rate_hz)
+    graph, values = _graph(imu, idx, (R_init, p_init, v_init), gps, baro, noise)
+    headings = 1 if self_pose is not None else _HEADING_STARTS
+    graph, solved = _solve(graph, values, len(idx), p_init[0], math.radians(rotation_sigma), noise, headings, max_iterations)
+    result = solved.values
+    nearest = _nearest(state_t, frames)
+    used = sorted(set(int(m) for m in nearest))
+    marginals = marginal_covariances(graph, result, [nav_keys(m)[0] for m in used])
+
+    # Camera frames: IMU prediction from the previous state; covariance of the nearest state.
+    vehicle = _vehicle_poses(imu, idx, result, frames)
+    Ad = _mount_adjoint(camera.mount)
+    cov = np.stack([Ad @ marginals[nav_keys(int(m))[0]] @ Ad.T for m in nearest])
+    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    seconds = time.perf_counter() - clock
+    info = {
+        "states": len(idx),
+        "gps_fixes": sum(m[2] for m in gps.values()),
+        "baro_samples": sum(m[2] for m in baro.values()),
+        "start": start,
+        "iterations": solved.iterations,
+        "converged": solved.converged,
+        "initial_error": solved.initial_error,
+        "final_error": solved.error,
+        "seconds": seconds,
+    }
+    if verbose:
+        status = "" if solved.converged else f" (not converged: {solved.reason})"
+        print(
+            f"vehicle fusion {camera.name}: {len(idx)} states over {state_t[-1] - state_t[0]:.1f} s, "
+            f"{info['gps_fixes']} GPS fixes, {info['baro_samples']} baro samples, start from {start}; "
+            f"LM {info['iterations']} iterations{status}, error {solved.initial_error:.4g} -> {solved.error:.4g}; "
+            f"{seconds:.2f} s",
+            file=sys.stderr,
+        )
+    return VehicleTrack(times=frames.copy(), world_T_camera=vehicle @ camera.mount, covariance=cov, source="fused", info=info)
+
+
+def camera_priors(
+    capture: Capture,
+    source: str = "fused",
+    *,
+    nav_rate_hz: float = 10.0,
+    noise: FusionNoise = FusionNoise(),
+    online_noise: OnlineNoise = OnlineNoise(),
+    verbose: bool = True,
+) -> tuple[dict[str, VehicleTrack], list[str]]:
+    """Camera pose priors from the vehicles' sensors, for every camera that has what it takes.
+
+    ``source="fused"`` runs :func:`fuse_vehicle` (needs a mount, an IMU and a GPS log);
+    ``source="online"`` runs :func:`online_track` (needs a mount and a self_pose log). A camera
+    that cannot have a track is skipped, with the reason in the returned notes.
+
+    Returns:
+        ``(tracks by camera name, notes)``.
+    """
+    if source not in SOURCES:
+        raise MocapgraphError(f"unknown camera prior source {source!r}; choose one of {', '.join(SOURCES)}")
+    tracks: dict[str, VehicleTrack] = {}
+    notes: list[str] = []
+    needs = ("imu", "gps") if source == "fused" else ("self_pose",)
+    for cam in capture.cameras:
+        missing = [k for k in needs if k not in cam.sensors]
+        if not cam.sensors:
+            notes.append(f"camera {cam.name}: skipped, no sensor logs")
+            continue
+        if missing:
+            notes.append(f"camera {cam.name}: skipped, no {' and no '.join(missing)} log for the {source} track")
+            continue
+        if cam.mount is None:
+            notes.append(f"camera {cam.name}: skipped, no mount (vehicle_T_camera)")
+            continue
+        try:
+            if source == "fused":
+                tracks[cam.name] = fuse_vehicle(cam, nav_rate_hz=nav_rate_hz, noise=noise, verbose=verbose)
+            else:
+                tracks[cam.name] = online_track(cam, noise=online_noise)
+        except MocapgraphError as exc:
+            notes.append(f"camera {cam.name}: skipped, {exc}")
+    return tracks, notes
