@@ -81,7 +81,6 @@ at first order, which is GTSAM's retract for both of its Pose3 charts). With ``A
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import gtsam
@@ -93,7 +92,7 @@ from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.reprojection import ShapeTableCache
 from mocapgraph.factors.keys import ground_key, motion_frame_key, motion_latent_key, pose_key, root_key
 from mocapgraph.priors.latent import BatchedDecoder, latent_prior_factor
-from mocapgraph.priors.motion_vae import MotionVAE
+from mocapgraph.priors.motion_vae import JACOBIAN_CHUNK, MotionVAE
 from mocapgraph.priors.motion_windows import POSITION_CHANNELS, WINDOW, canonical_frame, motion_features, rot_z
 
 POSE_DIM = 3 * (NUM_JOINTS - 1)
@@ -108,9 +107,6 @@ GROUND_TILT_SIGMA_RAD = 0.05
 GROUND_HEIGHT_SIGMA_M = 0.05
 """Default σ of the ground prior's height (metres): the decoder's joints sit up to 1.2 cm low on
 held-out walks, and a body shape away from the training subjects' moves them more."""
-JACOBIAN_CHUNK = 8
-"""Windows per vectorised Jacobian pass: 8 keeps a pass's tangents in cache (W = 128, L = 64, 72
-windows, 1 thread: 14.6 ms per window against 26.8 ms in one pass; chunks of 2 or 24: 15.8, 15.9 ms)."""
 
 
 def _wrap(angle: float) -> float:
@@ -343,24 +339,3 @@ class MotionVAEPrior:
             graph.add(self.tie_factor(w))
             for t in range(WINDOW):
                 graph.add(self.frame_factor(w, t))
-
-
-
-def decoder_jacobian_ms(vae: MotionVAE, windows: int = 72, repeats: int = 3, seed: int = 0) -> float:
-    """Milliseconds per window of one linearisation's decoder run (outputs and Jacobians of
-    ``windows`` latents in one :class:`~mocapgraph.priors.latent.BatchedDecoder` batch, as
-    :class:`MotionVAEPrior` does), the median of ``repeats``, with torch's current thread count.
-
-    72 windows are a 60 s sequence at 30 Hz with windows side by side.
-    """
-    keys = [motion_latent_key(w) for w in range(windows)]
-    values = gtsam.Values()
-    for key, z in zip(keys, np.random.default_rng(seed).standard_normal((windows, vae.latent_dim))):
-        values.insert(key, z)
-    seconds = []
-    for _ in range(repeats):
-        decoder = BatchedDecoder(vae.decode_positions, keys, vae.latent_dim, chunk_size=JACOBIAN_CHUNK)
-        start = time.perf_counter()
-        decoder(values, keys[0], jacobian=True)
-        seconds.append(time.perf_counter() - start)
-    return 1000.0 * float(np.median(seconds)) / windows
