@@ -142,7 +142,10 @@ def test_missing_points_and_a_missing_view(body, regressor):
             assert np.all(np.isfinite(a))
     # The invalid view is not exchanged: view 1 alone gives the same estimate.
     alone = regressor.predict(views[:1])[0]
-    np.testing.assert_allclose(alone.camera_T_root, out[0].camera_T_root, atol=1e-6)
+    # float32 network, batches of one and two views summed in a different order: a few ulps of
+    # each entry's magnitude (translations ~15 m), not 1e-6 absolute.
+    ulps = 64 * np.finfo(np.float32).eps
+    np.testing.assert_allclose(alone.camera_T_root, out[0].camera_T_root, rtol=ulps, atol=ulps)
 
 
 def test_load_errors_name_the_file(tmp_path, regressor):
