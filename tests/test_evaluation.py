@@ -50,6 +50,19 @@ def test_match_times_nearest_within_tolerance():
     np.testing.assert_array_equal(match_times(ref, np.array([-0.5, 0.04, 0.06, 0.31, 0.9]), 0.05), [-1, 0, 1, 3, -1])
 
 
+def test_match_times_ties_and_slack():
+    # Equally near: the earlier reference time, also when it is the last one in range.
+    np.testing.assert_array_equal(match_times(np.array([0.0, 1.0, 2.0]), np.array([0.5, 1.5, 3.0]), 1.0), [0, 1, 2])
+    # 3/60 is half a 30 Hz period after 1/30, but in float64 it lands 3.5e-18 s beyond.
+    ref, query, half = np.array([1 / 30]), np.array([3 / 60]), 0.5 / 30
+    assert abs(query[0] - ref[0]) > half
+    assert match_times(ref, query, half)[0] == -1
+    assert match_times(ref, query, half, rtol=1e-9)[0] == 0
+    assert match_times(ref, query, half, atol=1e-12)[0] == 0
+    # The slack is a hair, not a wider window.
+    assert match_times(ref, query + 1e-6, half, rtol=1e-9, atol=1e-12)[0] == -1
+
+
 def test_perfect_result_scores_zero(truth):
     ev = evaluate(perfect_result(truth), truth)
     assert ev.alignment.startswith("none")

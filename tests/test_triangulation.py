@@ -10,16 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
+from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
+from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_points, triangulate_ransac
 from mocapgraph.data_tools.io.capture import Camera, Capture, Detector
-from mocapgraph.data_tools.geometry.triangulation import (
-    Triangulation,
-    projection_matrix,
-    triangulate_capture,
-    triangulate_points,
-    triangulate_ransac,
-    undistort_pixels,
-)
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.pipelines.baseline import Triangulation, triangulate_capture
 
 FOCAL = 1000.0
 SIZE = (1920, 1080)
@@ -224,6 +219,56 @@ def test_sampled_pairs_are_deterministic_and_robust():
     assert not a[1][bad, np.arange(len(X))].any()
 
 
+def round_off(expected: np.ndarray) -> float:
+    """A few float64 ulps of the largest finite magnitude in ``expected``."""
+    return 64 * np.finfo(float).eps * np.nanmax(np.abs(expected))
+
+
+def assert_same_triangulation(got, expected):
+    (pts, inl, err), (pts_e, inl_e, err_e) = got, expected
+    assert np.array_equal(inl, inl_e)
+    assert np.array_equal(np.isnan(pts), np.isnan(pts_e)) and np.array_equal(np.isnan(err), np.isnan(err_e))
+    np.testing.assert_allclose(pts, pts_e, rtol=0, atol=round_off(pts_e))
+    np.testing.assert_allclose(err, err_e, rtol=0, atol=round_off(err_e))
+
+
+def test_per_point_projections_equal_the_per_view_form_and_per_frame_calls():
+    # One matrix per view repeated over the points is the per-view form, sampled pairs included.
+    rng, K, poses, P, X, obs = scene(8, 40, seed=10)
+    obs = obs + rng.normal(scale=0.5, size=obs.shape)
+    obs[rng.integers(0, 8, size=len(X)), np.arange(len(X))] += 120.0
+    obs[2, :5] = np.nan
+    repeated = np.repeat(P[:, None], len(X), axis=1)
+    for options in ({}, {"max_pairs": 6, "seed": 2}):
+        assert_same_triangulation(triangulate_ransac(repeated, obs, **options), triangulate_ransac(P, obs, **options))
+    dlt = triangulate_points(P, obs)
+    np.testing.assert_allclose(triangulate_points(repeated, obs), dlt, rtol=0, atol=round_off(dlt))
+
+    # Frames of moving cameras batched as one call equal one call per frame.
+    n_frames, n_cams, n_points = 6, 5, 17
+    K = intrinsics()
+    frames = []
+    for f in range(n_frames):
+        poses = ring(n_cams, radius=4.0 + 0.2 * f, phase=0.3 + 0.15 * f)
+        X = random_points(rng, n_points)
+        P = np.stack([P_of(K, T) for T in poses])
+        obs = np.stack([project(K, T, X)[0] for T in poses]) + rng.normal(scale=0.5, size=(n_cams, n_points, 2))
+        obs[f % n_cams, : 2 + f] += [90.0, -40.0]  # a wrong person in one view
+        conf = rng.uniform(0.5, 1.0, size=(n_cams, n_points))
+        frames.append((P, obs, conf))
+    frames[3][1][1] = np.nan  # camera 1 has no frame then: the batch gives it a zero matrix
+    per_frame = [triangulate_ransac(P, obs, conf, threshold_px=10.0) for P, obs, conf in frames]
+    P_batch = np.concatenate([np.repeat(P[:, None], n_points, axis=1) for P, _, _ in frames], axis=1)
+    P_batch[1, 3 * n_points : 4 * n_points] = 0.0
+    batched = triangulate_ransac(
+        P_batch, np.concatenate([o for _, o, _ in frames], axis=1), np.concatenate([c for _, _, c in frames], axis=1),
+        threshold_px=10.0,
+    )  # fmt: skip
+    pts, inl, err = zip(*per_frame)
+    assert_same_triangulation(batched, (np.concatenate(pts), np.concatenate(inl, axis=1), np.concatenate(err)))
+    assert not batched[1][1, 3 * n_points : 4 * n_points].any() and np.all(np.isfinite(batched[0]))
+
+
 def test_distorted_observations_are_undistorted_before_triangulation():
     rng = np.random.default_rng(7)
     # Close cameras with a short focal length, so the points reach where the lens bends most.
@@ -399,6 +444,16 @@ def test_bad_point_inputs_name_the_argument():
         triangulate_points(np.where(np.eye(3, 4) > 0, np.nan, P), obs)
     with pytest.raises(MocapgraphError, match=r"projections\[1\].*singular"):
         triangulate_points(np.stack([P[0], np.zeros((3, 4)), P[2]]), obs)
+    # A matrix no observation goes through is never used: a view without a frame may be zeros.
+    unseen = obs.copy()
+    unseen[1] = np.nan
+    assert np.all(np.isfinite(triangulate_points(np.stack([P[0], np.zeros((3, 4)), P[2]]), unseen)))
+    per_point = np.repeat(P[:, None], obs.shape[1], axis=1)
+    per_point[2, 4] = 0.0
+    with pytest.raises(MocapgraphError, match=r"projections\[2, 4\].*singular"):
+        triangulate_ransac(per_point, obs)
+    with pytest.raises(MocapgraphError, match="points"):
+        triangulate_ransac(per_point[:, 1:], obs)
     with pytest.raises(MocapgraphError, match="points"):
         triangulate_points(P, obs[:2])
     with pytest.raises(MocapgraphError, match="confidences"):

@@ -16,11 +16,11 @@ from scipy.stats import chi2
 
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.sim.synthetic import synthesize
-from mocapgraph.data_tools.geometry.triangulation import triangulate_capture
 from mocapgraph.data_tools.io.result import Result
 from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.pipelines.aircap import AircapOptions, camera_tracks, run_aircap
+from mocapgraph.pipelines.baseline import triangulate_capture
 
 REPORTED = ("mpjpe_m", "pa_mpjpe_m", "ra_mpjpe_m", "mpe_m", "moe_rad", "mcpe_m", "mcoe_rad")
 

@@ -1,9 +1,9 @@
-"""Triangulating 2D keypoints seen by calibrated cameras: the baseline every pipeline is compared to.
+"""Triangulating 2D keypoints seen by calibrated cameras: the geometry of the triangulation baseline.
 
-This is what a Pose2Sim or anipose user would do with cameras whose poses are known: per frame and
-per keypoint, a confidence-weighted linear triangulation (DLT), made robust by RANSAC over the
-views and polished by a few Gauss-Newton steps on the reprojection error. No body model, no
-temporal smoothing.
+This is what a Pose2Sim or anipose user would do with cameras whose poses are known: per keypoint, a
+confidence-weighted linear triangulation (DLT), made robust by RANSAC over the views and polished
+by a few Gauss-Newton steps on the reprojection error. No body model, no temporal smoothing.
+Arrays in, arrays out: :mod:`mocapgraph.pipelines.baseline` applies it to a whole capture.
 
 Conventions (``/work/shared/DESIGN.md``): world points in metres; pixels as the camera's image;
 projection matrices ``P = K [R | t]`` map homogeneous world points to homogeneous pixels, with
@@ -13,12 +13,9 @@ projection matrices ``P = K [R | t]`` map homogeneous world points to homogeneou
 from __future__ import annotations
 
 import numbers
-from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from mocapgraph.data_tools.io.capture import Camera, Capture
 from mocapgraph.errors import MocapgraphError, as_checked_array
 
 DEFAULT_THRESHOLD_PX = 15.0
@@ -28,31 +25,6 @@ DEFAULT_MAX_PAIRS = 100
 """Above this many view pairs, RANSAC samples pairs instead of trying them all (15 cameras and up)."""
 
 _REFINE_ITERATIONS = 5
-_FRAMES_PER_CHUNK = 256
-
-
-@dataclass
-class Triangulation:
-    """Keypoints triangulated from a calibrated capture, one row per reference time.
-
-    Attributes:
-        timestamps: ``(T,)`` seconds of the reference clock.
-        points: ``(T, K, 3)`` world points, metres; NaN where unknown.
-        format: keypoint format name of the detector used (``coco17``, …).
-        inliers: ``(T, C, K)`` whether camera ``c`` (in ``cameras`` order) supported the point.
-        reprojection_error_px: ``(T, K)`` mean reprojection error over the inlier views, pixels of
-            the undistorted image; NaN where the point is unknown.
-        cameras: ``(C,)`` camera names, the order of ``inliers``' second axis.
-        detector: name of the detector used.
-    """
-
-    timestamps: np.ndarray
-    points: np.ndarray
-    format: str
-    inliers: np.ndarray
-    reprojection_error_px: np.ndarray
-    cameras: tuple[str, ...] = ()
-    detector: str = ""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -63,7 +35,10 @@ def triangulate_points(projections, points, confidences=None) -> np.ndarray:
     """Confidence-weighted linear triangulation (DLT) of each keypoint from all views that see it.
 
     Args:
-        projections: ``(C, 3, 4)`` pixel projection matrices ``K [R | t]`` (any scale and sign).
+        projections: pixel projection matrices ``K [R | t]`` (any scale and sign), either
+            ``(C, 3, 4)``, one per view, or ``(C, K, 3, 4)``, one per view and keypoint (e.g.
+            keypoints of several frames of moving cameras solved as one batch). A matrix whose
+            left 3×3 block is singular is an error only where its view sees the keypoint.
         points: ``(C, K, 2)`` pixel observations (undistorted); NaN = not seen by that view.
         confidences: ``(C, K)`` in ``[0, ∞)``, each view's two equations are scaled by it;
             NaN or 0 = not seen; None = all ones.
@@ -72,8 +47,7 @@ def triangulate_points(projections, points, confidences=None) -> np.ndarray:
         ``(K, 3)`` world points, the units of the projections' translations (metres); NaN for a
         keypoint seen by fewer than 2 views or triangulated at infinity.
     """
-    P, x, w = _check_inputs(projections, points, confidences)
-    return _weighted_dlt(_per_point(P, x.shape[1]), x, w)
+    return _weighted_dlt(*_check_inputs(projections, points, confidences))
 
 
 def triangulate_ransac(
@@ -97,14 +71,16 @@ def triangulate_ransac(
     views are inliers, the new set is fitted once more.
 
     Args:
-        projections: ``(C, 3, 4)`` pixel projection matrices ``K [R | t]``.
+        projections: pixel projection matrices ``K [R | t]``: ``(C, 3, 4)``, one per view, or
+            ``(C, K, 3, 4)``, one per view and keypoint (as in :func:`triangulate_points`).
         points: ``(C, K, 2)`` undistorted pixel observations; NaN = not seen.
         confidences: ``(C, K)``; NaN or 0 = not seen; None = all ones.
         threshold_px: inlier threshold on the reprojection error, pixels.
         min_views: fewest inlier views for a point to be reported (at least 2).
         max_pairs: try all view pairs when there are at most this many, else sample this many.
         refine: run the Gauss-Newton refinement.
-        seed: seed or generator for the pair sampling (unused when all pairs are tried).
+        seed: seed or generator for the pair sampling (unused when all pairs are tried); a
+            generator is advanced, so calls sharing one draw different pairs.
 
     Returns:
         ``points (K, 3)`` world, NaN where fewer than ``min_views`` views agree;
@@ -112,36 +88,9 @@ def triangulate_ransac(
         ``error (K,)`` mean reprojection error over the inliers, pixels; NaN where no point.
     """
     P, x, w = _check_inputs(projections, points, confidences)
-    _check_ransac_options(threshold_px, min_views, max_pairs)
+    check_ransac_options(threshold_px, min_views, max_pairs)
     rng = np.random.default_rng(seed)
-    return _ransac(_per_point(P, x.shape[1]), x, w, float(threshold_px), int(min_views), int(max_pairs), rng, refine)
-
-
-def undistort_pixels(points, K, distortion) -> np.ndarray:
-    """Pixels of a distorted image → pixels of the ideal pinhole camera with the same ``K``.
-
-    Args:
-        points: ``(..., 2)`` pixels; NaN rows stay NaN.
-        K: ``(3, 3)`` intrinsics.
-        distortion: OpenCV coefficients ``k1, k2, p1, p2[, k3, …]``.
-
-    Returns:
-        ``(..., 2)`` undistorted pixels (a copy; unchanged when the distortion is all zero).
-    """
-    pts = np.array(points, dtype=float, copy=True)
-    dist = np.asarray(distortion, dtype=float).ravel()
-    if not np.any(dist):
-        return pts
-    flat = pts.reshape(-1, 2)
-    ok = np.all(np.isfinite(flat), axis=1)
-    if np.any(ok):
-        # OpenCV's default stops after 5 fixed-point iterations: with k1 = -0.3 that leaves ~0.2 px
-        # of error half-way to the image edge and more beyond; iterate to convergence instead.
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-        Kf = np.asarray(K, dtype=float)
-        und = cv2.undistortPoints(flat[ok].reshape(-1, 1, 2), Kf, dist, P=Kf, criteria=criteria)
-        flat[ok] = und.reshape(-1, 2)
-    return flat.reshape(pts.shape)
+    return _ransac(P, x, w, float(threshold_px), int(min_views), int(max_pairs), rng, refine)
 
 
 def projection_matrix(K, world_T_camera) -> np.ndarray:
@@ -153,221 +102,19 @@ def projection_matrix(K, world_T_camera) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# Capture-level API
-
-
-def triangulate_capture(
-    capture: Capture,
-    detector: str | None = None,
-    *,
-    threshold_px: float = DEFAULT_THRESHOLD_PX,
-    seed: int = 0,
-    max_time_offset_s: float | None = None,
-    min_views: int = 2,
-    refine: bool = True,
-) -> Triangulation:
-    """Triangulate one detector's keypoints from a capture whose cameras are all calibrated.
-
-    The reference clock is the first camera's timestamps, extended before and after with its
-    median frame period wherever other cameras recorded outside its span (those extra times are
-    kept only where at least ``min_views`` cameras have a frame). Each camera contributes, at each
-    reference time, its nearest frame if that is within ``max_time_offset_s`` (default: half of
-    that camera's frame period), with its pose at that frame (static cameras: their one pose).
-    Keypoints are undistorted with each camera's OpenCV distortion and triangulated by
-    :func:`triangulate_ransac`.
-
-    Args:
-        capture: cameras with ``extrinsics`` (world_T_camera) and detections.
-        detector: detector name; None = the first detector (in the first camera's order) that every
-            camera has.
-        threshold_px: RANSAC inlier threshold, pixels.
-        seed: seed of RANSAC's pair sampling (only used with many cameras).
-        max_time_offset_s: largest gap between a camera's frame and the reference time, seconds.
-        min_views: fewest agreeing views for a point.
-        refine: Gauss-Newton refinement of each point.
-
-    Returns:
-        A :class:`Triangulation` in the capture's world frame.
-    """
-    if not isinstance(capture, Capture):
-        raise MocapgraphError(f"capture: expected a Capture, got {type(capture).__name__}")
-    if not capture.cameras:
-        raise MocapgraphError(f"capture {capture.name!r}: has no cameras")
-    _check_ransac_options(threshold_px, min_views, DEFAULT_MAX_PAIRS)
-    if max_time_offset_s is not None and not (np.isfinite(max_time_offset_s) and max_time_offset_s >= 0):
-        raise MocapgraphError(f"max_time_offset_s: must be a non-negative number of seconds, got {max_time_offset_s!r}")
-    cams = capture.cameras
-    if len(cams) < min_views:
-        raise MocapgraphError(
-            f"capture {capture.name!r}: triangulation needs at least {min_views} cameras, it has {len(cams)}"
-        )
-    for cam in cams:
-        _check_camera(cam)
-    name = _pick_detector(capture, detector)
-    fmt = cams[0].detectors[name].format
-    for cam in cams[1:]:
-        if cam.detectors[name].format != fmt:
-            raise MocapgraphError(
-                f"camera {cam.name!r}: detector {name!r} is in format {cam.detectors[name].format!r}, "
-                f"but camera {cams[0].name!r} has it in {fmt!r}; triangulation needs one format"
-            )
-    K_pts = cams[0].detectors[name].keypoints.shape[1]
-    for cam in cams[1:]:
-        if cam.detectors[name].keypoints.shape[1] != K_pts:
-            raise MocapgraphError(
-                f"camera {cam.name!r}: detector {name!r} has {cam.detectors[name].keypoints.shape[1]} keypoints, "
-                f"camera {cams[0].name!r} has {K_pts}"
-            )
-
-    times, frame_of = _match_frames(cams, max_time_offset_s, min_views)
-    C, T = len(cams), len(times)
-
-    # Everything per camera is gathered once onto the reference clock: (C, T, …).
-    P = np.zeros((C, T, 3, 4))
-    x = np.full((C, T, K_pts, 2), np.nan)
-    w = np.zeros((C, T, K_pts))
-    for c, cam in enumerate(cams):
-        used = frame_of[c] >= 0
-        idx = frame_of[c][used]
-        kp = np.asarray(cam.detectors[name].keypoints, dtype=float)[idx]
-        x[c, used] = undistort_pixels(kp[..., :2], cam.K, cam.distortion)
-        conf = kp[..., 2]
-        w[c, used] = np.where(np.isfinite(conf) & np.all(np.isfinite(kp[..., :2]), axis=-1), conf, 0.0)
-        ext = np.asarray(cam.extrinsics, dtype=float)
-        poses = ext[np.zeros_like(idx)] if len(ext) == 1 else ext[idx]
-        P[c, used] = projection_matrix(cam.K, poses)
-    if np.any(w < 0):
-        c = int(np.argwhere(w < 0)[0][0])
-        raise MocapgraphError(f"camera {cams[c].name!r}: detector {name!r} has negative confidences")
-
-    rng = np.random.default_rng(seed)
-    points = np.full((T, K_pts, 3), np.nan)
-    inliers = np.zeros((T, C, K_pts), dtype=bool)
-    errors = np.full((T, K_pts), np.nan)
-    # Frames are independent, so a chunk of them is solved as one batch of T·K points.
-    for start in range(0, T, _FRAMES_PER_CHUNK):
-        sl = slice(start, min(T, start + _FRAMES_PER_CHUNK))
-        n = sl.stop - sl.start
-        Pc = np.repeat(P[:, sl, None], K_pts, axis=2).reshape(C, n * K_pts, 3, 4)
-        X, mask, err = _ransac(
-            Pc, x[:, sl].reshape(C, n * K_pts, 2), w[:, sl].reshape(C, n * K_pts),
-            float(threshold_px), int(min_views), DEFAULT_MAX_PAIRS, rng, refine,
-        )  # fmt: skip
-        points[sl] = X.reshape(n, K_pts, 3)
-        inliers[sl] = mask.reshape(C, n, K_pts).transpose(1, 0, 2)
-        errors[sl] = err.reshape(n, K_pts)
-    return Triangulation(
-        timestamps=times,
-        points=points,
-        format=fmt,
-        inliers=inliers,
-        reprojection_error_px=errors,
-        cameras=tuple(c.name for c in cams),
-        detector=name,
-    )
-
-
-def _check_camera(cam: Camera) -> None:
-    if cam.extrinsics is None:
-        raise MocapgraphError(
-            f"camera {cam.name!r}: has no extrinsics; triangulation needs every camera calibrated "
-            "(use an uncalibrated pipeline such as airpose or smartmocap instead)"
-        )
-    ext = np.asarray(cam.extrinsics, dtype=float)
-    T = len(cam.timestamps)
-    if ext.ndim != 3 or ext.shape[1:] != (4, 4) or ext.shape[0] not in (1, T):
-        raise MocapgraphError(
-            f"camera {cam.name!r}: extrinsics must have shape (1, 4, 4) or ({T}, 4, 4), got {ext.shape}"
-        )
-    if not np.all(np.isfinite(ext)):
-        raise MocapgraphError(f"camera {cam.name!r}: extrinsics contain NaN or inf")
-    K = np.asarray(cam.K, dtype=float)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise MocapgraphError(f"camera {cam.name!r}: K must be a (3, 3) intrinsic matrix with fx, fy > 0")
-    ts = np.asarray(cam.timestamps, dtype=float)
-    if ts.ndim != 1 or ts.size == 0 or not np.all(np.isfinite(ts)) or np.any(np.diff(ts) <= 0):
-        raise MocapgraphError(f"camera {cam.name!r}: timestamps must be a non-empty, strictly increasing 1D array")
-    if not (np.isfinite(cam.frame_rate) and cam.frame_rate > 0):
-        raise MocapgraphError(f"camera {cam.name!r}: frame_rate must be positive, got {cam.frame_rate!r}")
-
-
-def _pick_detector(capture: Capture, detector: str | None) -> str:
-    cams = capture.cameras
-    if detector is not None:
-        for cam in cams:
-            if detector not in cam.detectors:
-                have = ", ".join(cam.detectors) or "none"
-                raise MocapgraphError(f"camera {cam.name!r}: has no detector {detector!r} (it has: {have})")
-        name = detector
-    else:
-        common = [n for n in cams[0].detectors if all(n in c.detectors for c in cams[1:])]
-        if not common:
-            listing = "; ".join(f"{c.name}: {', '.join(c.detectors) or 'none'}" for c in cams)
-            raise MocapgraphError(f"capture {capture.name!r}: no detector is present on every camera ({listing})")
-        name = common[0]
-    for cam in cams:
-        kp = np.asarray(cam.detectors[name].keypoints)
-        if kp.ndim != 3 or kp.shape[0] != len(cam.timestamps) or kp.shape[2] != 3:
-            raise MocapgraphError(
-                f"camera {cam.name!r}: detector {name!r} keypoints must have shape "
-                f"({len(cam.timestamps)}, K, 3), got {kp.shape}"
-            )
-    return name
-
-
-def _match_frames(cams: list[Camera], max_offset: float | None, min_views: int) -> tuple[np.ndarray, np.ndarray]:
-    """Reference times ``(T,)`` and, per camera, the frame used at each ``(C, T)`` (-1 = none)."""
-    base = np.asarray(cams[0].timestamps, dtype=float)
-    period = float(np.median(np.diff(base))) if len(base) > 1 else 1.0 / cams[0].frame_rate
-    lo = min(float(c.timestamps[0]) for c in cams)
-    hi = max(float(c.timestamps[-1]) for c in cams)
-    # Extend so every other camera's frame lies within half a period of some reference time.
-    n_before = max(0, int(np.ceil((base[0] - lo) / period - 0.5)))
-    n_after = max(0, int(np.ceil((hi - base[-1]) / period - 0.5)))
-    before = base[0] - period * np.arange(n_before, 0, -1)
-    after = base[-1] + period * np.arange(1, n_after + 1)
-    times = np.concatenate([before, base, after])
-    own = np.zeros(len(times), dtype=bool)
-    own[n_before : n_before + len(base)] = True
-
-    frame_of = np.full((len(cams), len(times)), -1, dtype=np.int64)
-    for c, cam in enumerate(cams):
-        ts = np.asarray(cam.timestamps, dtype=float)
-        limit = 0.5 / cam.frame_rate if max_offset is None else max_offset
-        right = np.clip(np.searchsorted(ts, times), 0, len(ts) - 1)
-        left = np.clip(right - 1, 0, len(ts) - 1)
-        nearest = np.where(np.abs(ts[left] - times) <= np.abs(ts[right] - times), left, right)
-        # A hair of slack so a frame exactly half a period away is not lost to rounding.
-        ok = np.abs(ts[nearest] - times) <= limit * (1 + 1e-9) + 1e-12
-        frame_of[c, ok] = nearest[ok]
-
-    present = frame_of >= 0
-    shared = present & (present.sum(axis=0) >= 2)
-    for c, cam in enumerate(cams):
-        if not np.any(shared[c]):
-            limit = 0.5 / cam.frame_rate if max_offset is None else max_offset
-            spans = ", ".join(f"{o.name} {o.timestamps[0]:.3f}–{o.timestamps[-1]:.3f} s" for o in cams)
-            raise MocapgraphError(
-                f"camera {cam.name!r}: no frame within {limit:.4g} s of a frame of another camera; "
-                f"are the clocks the same? (spans: {spans})"
-            )
-    keep = own | (present.sum(axis=0) >= min_views)
-    return times[keep], frame_of[:, keep]
-
-
-# ---------------------------------------------------------------------------------------------
 # Input checks
 
 
 def _check_inputs(projections, points, confidences) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    P = as_checked_array(projections, "projections", (None, 3, 4))
+    """``P (C, K, 3, 4)`` (a read-only view when one matrix serves all keypoints), ``x (C, K, 2)``
+    and ``w (C, K)`` with ``w = 0`` where unseen: the layout of the batched kernels."""
+    try:
+        per_point = np.asarray(projections, dtype=float).ndim == 4
+    except (TypeError, ValueError):
+        per_point = False  # as_checked_array words the error
+    P = as_checked_array(projections, "projections", (None, None, 3, 4) if per_point else (None, 3, 4))
     C = P.shape[0]
-    degenerate = ~np.any(_normalised(P), axis=(1, 2))
-    if np.any(degenerate):
-        raise MocapgraphError(
-            f"projections[{int(np.argmax(degenerate))}]: its left 3×3 block is singular, not a camera's K [R | t]"
-        )
-    x = as_checked_array(points, "points", (C, None, 2), finite=False)
+    x = as_checked_array(points, "points", (C, P.shape[1] if per_point else None, 2), finite=False)
     if np.any(np.isinf(x)):
         raise MocapgraphError("points: contains inf (missing observations are NaN)")
     K = x.shape[1]
@@ -381,21 +128,23 @@ def _check_inputs(projections, points, confidences) -> tuple[np.ndarray, np.ndar
             raise MocapgraphError("confidences: must be non-negative (missing = NaN)")
     seen = np.all(np.isfinite(x), axis=-1) & np.isfinite(w)
     w = np.where(seen, w, 0.0)
-    return P, x, w
+    # Only matrices that are used must be cameras: callers batching frames put zeros where a view
+    # has no frame.
+    singular = ~np.any(_normalised(P), axis=(-2, -1)) & (w > 0 if per_point else np.any(w > 0, axis=1))
+    if np.any(singular):
+        where = ", ".join(str(int(i)) for i in np.argwhere(singular)[0])
+        raise MocapgraphError(f"projections[{where}]: its left 3×3 block is singular, not a camera's K [R | t]")
+    return (P if per_point else np.broadcast_to(P[:, None], (C, K, 3, 4))), x, w
 
 
-def _check_ransac_options(threshold_px, min_views, max_pairs) -> None:
+def check_ransac_options(threshold_px, min_views, max_pairs) -> None:
+    """Raise a :class:`MocapgraphError` naming the first bad option of :func:`triangulate_ransac`."""
     if not (isinstance(threshold_px, numbers.Real) and np.isfinite(threshold_px) and threshold_px > 0):
         raise MocapgraphError(f"threshold_px: must be a positive number of pixels, got {threshold_px!r}")
     if not (isinstance(min_views, (int, np.integer)) and min_views >= 2):
         raise MocapgraphError(f"min_views: must be an integer of at least 2, got {min_views!r}")
     if not (isinstance(max_pairs, (int, np.integer)) and max_pairs >= 1):
         raise MocapgraphError(f"max_pairs: must be a positive integer, got {max_pairs!r}")
-
-
-def _per_point(P: np.ndarray, n: int) -> np.ndarray:
-    """``(C, 3, 4)`` → a read-only ``(C, n, 3, 4)`` view, the layout of the batched kernels."""
-    return np.broadcast_to(P[:, None], (P.shape[0], n, 3, 4))
 
 
 # ---------------------------------------------------------------------------------------------

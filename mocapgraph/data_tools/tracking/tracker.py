@@ -27,9 +27,8 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter, KalmanFilter
 from scipy.stats import chi2
 
-from mocapgraph.data_tools.geometry.camera_model import project_points
+from mocapgraph.data_tools.geometry.camera_model import project_points, undistort_pixels
 from mocapgraph.data_tools.io.capture import Camera, Capture
-from mocapgraph.data_tools.geometry.triangulation import undistort_pixels
 from mocapgraph.errors import MocapgraphError
 
 UP = np.array([0.0, 0.0, 1.0])
