@@ -25,13 +25,13 @@ from mocapgraph.data_tools.sim.sensors import (
     ImuNoise,
     SelfPoseError,
     VehicleTrajectory,
-    hold_intervals,
     simulate_baro,
     simulate_gps,
     simulate_imu,
     simulate_self_pose,
 )
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.graphs.navigation import hold_intervals
 
 DURATION_S = 20.0
 

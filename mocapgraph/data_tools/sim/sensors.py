@@ -224,22 +224,6 @@ def simulate_imu(times, poses, rng: np.random.Generator, noise: ImuNoise = ImuNo
     return {"t": times.copy(), "accel": accel, "gyro": gyro}
 
 
-def hold_intervals(imu: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per interval between consecutive IMU samples: ``accel (N-1, 3)``, ``gyro (N-1, 3)``, ``dt (N-1,)``
-    for integrators that hold one measurement constant over ``dt`` (GTSAM's ``integrateMeasurement``).
-
-    The samples are instantaneous; holding sample *k* over ``[t_k, t_k+1]`` is first-order wrong.
-    Here ``gyro`` is the mean of the two end samples and ``accel`` the mean specific force turned
-    into the frame at the start of the interval, ``Exp(gyro dt / 2) · mean``, which is what the
-    hold integrators assume. With noise-free samples of a scenario, GTSAM then predicts a 1 s
-    interval to under a millimetre (up to ~4 cm holding the raw samples).
-    """
-    t, accel, gyro = (np.asarray(imu[k], dtype=float) for k in ("t", "accel", "gyro"))
-    dt = np.diff(t)
-    omega = 0.5 * (gyro[1:] + gyro[:-1])
-    mean = 0.5 * (accel[1:] + accel[:-1])
-    return np.einsum("nij,nj->ni", rotvec_to_matrix(0.5 * omega * dt[:, None]), mean), omega, dt
-
 
 # ---------------------------------------------------------------------------------------------
 # GPS
