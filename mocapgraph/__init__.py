@@ -1,4 +1,10 @@
-"""mocapgraph: markerless multi-camera human motion capture as GTSAM factor graphs."""
+"""mocapgraph: markerless multi-camera human motion capture as GTSAM factor graphs.
+
+Packages, lowest first (a package imports only those before it; ``tests/test_layers.py`` checks):
+``errors`` and ``progress`` (for everyone), ``body``, ``data_tools`` (``geometry``, ``io``,
+``sim``, ``tracking``, ``evaluation``), ``factors``, ``priors``, ``graphs``, ``pipelines``, and on
+top ``benchmarks`` and ``cli``. This module imports only ``errors``.
+"""
 
 from mocapgraph.errors import MocapgraphError
 

@@ -65,3 +65,60 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+class RecordingBar:
+    """Stands in for :func:`mocapgraph.progress.progress_bar`: records what it is told."""
+
+    def __init__(self, iterable=None, *, total=None, desc="", unit=""):
+        self.iterable, self.total, self.desc, self.unit, self.updates = iterable, total, desc, unit, 0
+        self.made.append(self)
+
+    def __iter__(self):
+        for item in self.iterable:
+            self.updates += 1
+            yield item
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+    def update(self, n=1):
+        self.updates += n
+
+    def reset(self, total=None):
+        self.total, self.updates = total, 0
+
+    def close(self):
+        pass
+
+
+@pytest.fixture
+def bars(monkeypatch):
+    """``bars(module)`` replaces that module's ``progress_bar`` by :class:`RecordingBar`; returns the
+    list of the bars it makes."""
+    made: list[RecordingBar] = []
+
+    def install(module) -> list[RecordingBar]:
+        monkeypatch.setattr(module, "progress_bar", type("Bar", (RecordingBar,), {"made": made}))
+        return made
+
+    return install
+
+
+@pytest.fixture(autouse=True)
+def fresh_logging():
+    """Every test starts with the ``mocapgraph`` loggers as a library user finds them: the
+    command line's handler and level (set by a test that ran ``main``) do not leak."""
+    import logging
+
+    from mocapgraph.progress import ROOT_LOGGER
+
+    logger = logging.getLogger(ROOT_LOGGER)
+    yield
+    for handler in list(logger.handlers):
+        logger.removeHandler(handler)
+    logger.setLevel(logging.NOTSET)
+    logger.propagate = True

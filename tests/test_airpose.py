@@ -8,13 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mocapgraph.data_tools.io.capture import write_capture
+from mocapgraph.benchmarks.airpose import camera2_position_error_m
+from mocapgraph.cli.main import main
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.io.capture import write_capture
 from mocapgraph.data_tools.io.result import load_result
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.pipelines.airpose import AirposeOptions, run_airpose
-from mocapgraph.benchmarks.airpose import camera2_position_error_m
-from mocapgraph.cli.main import main
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def capture():
 
 def run(capture, **kw):
     kw.setdefault("initialiser", "pnp")
-    result = run_airpose(capture, AirposeOptions(progress=False, **kw))
+    result = run_airpose(capture, AirposeOptions(**kw))
     return result, evaluate(result, capture).metrics
 
 

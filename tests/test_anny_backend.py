@@ -6,10 +6,9 @@ import itertools
 
 import numpy as np
 import pytest
-
 from conftest import random_root
-from mocapgraph.body import load_body_model
-from mocapgraph.body import anny_backend
+
+from mocapgraph.body import anny_backend, load_body_model
 from mocapgraph.body.anny_export import SMPL_TO_ANNY
 from mocapgraph.body.kinematics import SHAPE_START, forward_kinematics_numpy
 from mocapgraph.body.skeleton import JOINT_NAMES

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mocapgraph.cli.main import main
 from mocapgraph.data_tools.io.capture import write_capture
 from mocapgraph.data_tools.io.result import load_result
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.pipelines.baseline import run_baseline
-from mocapgraph.pipelines.batch import PIPELINES, run_batch
-from mocapgraph.cli.main import main
+from mocapgraph.pipelines.batch import run_batch
+from mocapgraph.pipelines.runner import PIPELINES, run_capture
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +28,7 @@ def test_batch_baseline_equals_the_pipeline_run_directly(captures, tmp_path, cap
     lines = capsys.readouterr().out.splitlines()
     for cap in captures:
         batched = load_result(out / cap.name)
-        direct = run_baseline(cap, tmp_path / f"direct_{cap.name}")
+        direct = run_capture("baseline", cap, tmp_path / f"direct_{cap.name}")
         assert batched.pipeline == "baseline" and len(batched.timestamps) == 31
         np.testing.assert_array_equal(batched.timestamps, direct.timestamps)
         np.testing.assert_array_equal(batched.joints, direct.joints)  # NaN: the baseline has no body
@@ -71,12 +71,13 @@ def test_input_mistakes_stop_the_batch_before_it_runs(captures, tmp_path):
     assert not (out / captures[0].name).exists()
 
 
-def test_registry_entries_are_module_level_functions():
-    """Tasks pickle the function by reference, so every entry must be importable by name."""
-    import importlib
+def test_registry_entries_name_what_their_modules_hold():
+    """Every pipeline's options dataclass, run function and summary are importable by name."""
+    from dataclasses import is_dataclass
 
-    for name, fn in PIPELINES.items():
-        assert getattr(importlib.import_module(fn.__module__), fn.__qualname__) is fn, name
+    for name, entry in PIPELINES.items():
+        assert is_dataclass(entry.default_options()), name
+        assert callable(entry.attribute("run")) and callable(entry.attribute("summary")), name
 
 
 def test_batch_on_ray_writes_what_the_local_pool_writes(captures, tmp_path):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from mocapgraph.data_tools.io.result import Result
 from mocapgraph.benchmarks.aircap import coverage
+from mocapgraph.data_tools.io.result import Result
 
 
 def result_with_errors(scale: float, seed: int = 0, frames: int = 400):

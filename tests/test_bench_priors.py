@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-
-from mocapgraph.errors import MocapgraphError
-from mocapgraph.benchmarks.priors import _held_out_takes, corrupt
 from conftest import random_root
+
+from mocapgraph.benchmarks.priors import _held_out_takes, corrupt
+from mocapgraph.errors import MocapgraphError
 
 
 @pytest.fixture

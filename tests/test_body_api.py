@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import random_root
+
 from mocapgraph.body import load_body_model
 from mocapgraph.body.kinematics import forward_kinematics_numpy
 from mocapgraph.errors import MocapgraphError

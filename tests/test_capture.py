@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import random_root
+
 from mocapgraph.data_tools.io import capture as cap
 from mocapgraph.data_tools.io.capture import (
     Camera,

@@ -8,10 +8,10 @@ import sys
 
 import numpy as np
 import pytest
-
-from mocapgraph.data_tools.io.capture import write_capture
-from mocapgraph.cli.main import main
 from test_capture import make_capture
+
+from mocapgraph.cli.main import main
+from mocapgraph.data_tools.io.capture import write_capture
 
 
 def test_body_info_lists_joints_keypoints_and_shape(capsys):
@@ -97,8 +97,9 @@ def test_every_subcommand_has_help(args):
 
 
 def test_priors_train_motion_on_a_tiny_motion_directory(tmp_path, capsys):
-    from mocapgraph.priors.motion_vae import MotionVAE
     from test_cmu_motion import write_take
+
+    from mocapgraph.priors.motion_vae import MotionVAE
 
     for i, subject in enumerate((1, 2, 3, 4, 6)):
         write_take(tmp_path / f"cmu_{subject:02d}_01.npz", frames=40, seed=i)

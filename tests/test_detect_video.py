@@ -10,11 +10,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
-from mocapgraph.data_tools.tracking import detect_video as dv
-from mocapgraph.data_tools.io.capture import load_capture
-from mocapgraph.errors import MocapgraphError
 from test_importers import run_cli
+
+from mocapgraph.data_tools.io.capture import load_capture
+from mocapgraph.data_tools.tracking import detect_video as dv
+from mocapgraph.errors import MocapgraphError
 
 HAVE_MEDIAPIPE = importlib.util.find_spec("mediapipe") is not None
 SIZE = (80, 60)
@@ -65,7 +65,8 @@ class FakePose:
         self.close()
 
 
-def test_frame_loop_with_a_fake_estimator(tmp_path, capsys):
+def test_frame_loop_with_a_fake_estimator(tmp_path, bars):
+    made = bars(dv)
     video = write_video(tmp_path / "walk.avi", 6)
     fake = FakePose()
     kp, boxes, fps, size = dv.detect_video(video, estimator=fake)
@@ -79,13 +80,13 @@ def test_frame_loop_with_a_fake_estimator(tmp_path, capsys):
         np.testing.assert_allclose(kp[i, 8], [500, 500, 0.2])
         # the box spans the points seen with visibility >= 0.5 (not 7, not 8), clipped to the image
         np.testing.assert_allclose(boxes[i], [10 + i, 5, min(42 + i, SIZE[0] - 1), 37, 0.9])
-    err = capsys.readouterr().err
-    assert "walk.avi: 6 frames" in err
+    (bar,) = made
+    assert (bar.desc, bar.total, bar.updates) == ("walk.avi", 6, 6)
 
 
 def test_max_frames_and_quiet(tmp_path, capsys):
     video = write_video(tmp_path / "clip.avi", 5)
-    kp, boxes, _, _ = dv.detect_video(video, estimator=FakePose(), progress=False, max_frames=3)
+    kp, boxes, _, _ = dv.detect_video(video, estimator=FakePose(), max_frames=3)
     assert kp.shape == (3, 33, 3)
     assert capsys.readouterr().err == ""
 
@@ -93,7 +94,7 @@ def test_max_frames_and_quiet(tmp_path, capsys):
 def test_estimator_with_a_wrong_shape(tmp_path):
     video = write_video(tmp_path / "clip.avi", 2)
     with pytest.raises(MocapgraphError, match="estimator returned shape \\(17, 3\\)"):
-        dv.detect_video(video, estimator=lambda rgb: np.zeros((17, 3)), progress=False)
+        dv.detect_video(video, estimator=lambda rgb: np.zeros((17, 3)))
 
 
 def test_unreadable_video(tmp_path):
@@ -108,7 +109,7 @@ def test_without_mediapipe_the_error_says_how_to_install(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "mediapipe", None)  # import mediapipe now fails, installed or not
     video = write_video(tmp_path / "clip.avi", 2)
     with pytest.raises(MocapgraphError) as err:
-        dv.detect_video(video, progress=False)
+        dv.detect_video(video)
     assert "install the video extra: pip install 'mocapgraph[video]'" in str(err.value)
 
 
@@ -176,7 +177,7 @@ def test_mediapipe_finds_the_person_in_a_photograph(tmp_path):
     for _ in range(3):
         writer.write(image)
     writer.release()
-    kp, boxes, fps, size = dv.detect_video(video, progress=False)
+    kp, boxes, fps, size = dv.detect_video(video)
     assert size == (w, h) and fps == 10.0 and kp.shape == (3, 33, 3)
     assert np.isfinite(kp[:, 0]).all()  # the nose is found in every frame
     # where a person sees them: nose in the middle of the face, shoulders at the sides of the chest

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import random_root
+
 from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import rotvec_to_matrix
-from mocapgraph.data_tools.io.capture import Camera, Capture, GroundTruth
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.geometry.timing import match_times
+from mocapgraph.data_tools.io.capture import Camera, Capture, GroundTruth
 from mocapgraph.data_tools.io.result import CameraTrack, Result
 from mocapgraph.errors import MocapgraphError
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.pipelines import executors
 from mocapgraph.pipelines.executors import TaskError, make_executor
 
 
@@ -50,7 +51,8 @@ def square_but_three(i: int) -> int:
 
 
 @pytest.mark.parametrize("workers", [1, 2])
-def test_local_matches_a_plain_loop_in_order(workers, capsys):
+def test_local_matches_a_plain_loop_in_order(workers, bars):
+    made = bars(executors)
     expected = [seeded_lstsq(s) for s in range(8)]
     with make_executor("local", workers=workers) as pool:
         got = pool.map(seeded_lstsq, list(range(8)), progress="fit")
@@ -59,8 +61,8 @@ def test_local_matches_a_plain_loop_in_order(workers, capsys):
         np.testing.assert_array_equal(e, g)
     # the fits recover the plane they were drawn from, so the items did not get mixed up
     assert np.allclose([g[2] for g in got], np.arange(8), atol=0.1)
-    err = capsys.readouterr().err.splitlines()
-    assert len(err) == 8 and err[-1] == "fit: 8/8 done"
+    (bar,) = made
+    assert (bar.desc, bar.total, bar.updates) == ("fit", 8, 8)
     with make_executor("local", workers=workers) as pool:
         assert pool.map(functools.partial(pow, 2), [3, 5, 10]) == [8, 32, 1024]
 
@@ -101,7 +103,8 @@ def ray_pool():
     assert not ray.is_initialized()
 
 
-def test_ray_gives_the_local_results(ray_pool, capsys):
+def test_ray_gives_the_local_results(ray_pool, bars):
+    made = bars(executors)
     seeds = list(range(6))
     with make_executor("local", workers=1) as local:
         expected = local.map(seeded_pose_chain, seeds)
@@ -111,7 +114,8 @@ def test_ray_gives_the_local_results(ray_pool, capsys):
     # consecutive poses sit about a metre apart around the loop: a solved chain, not the start
     steps = np.linalg.norm(np.diff(np.stack(got)[:, :, :2], axis=1), axis=2)
     assert np.allclose(steps, 1.0, atol=0.15)
-    assert capsys.readouterr().err.splitlines()[-1] == "ray: 6/6 done"
+    bar = made[-1]
+    assert (bar.desc, bar.total, bar.updates) == ("ray", 6, 6)
 
 
 def test_ray_failing_task_and_joining_a_running_instance(ray_pool):

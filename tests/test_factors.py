@@ -14,11 +14,11 @@ from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
 from mocapgraph.factors.camera_priors import camera_prior_factor
-from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
+from mocapgraph.factors.keys import camera_key, pose_key, root_key, shape_key
 from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
 from mocapgraph.factors.reprojection_kernel import reproject_numpy
 from mocapgraph.factors.robust import RobustScale
-from mocapgraph.factors.keys import camera_key, pose_key, root_key, shape_key
+from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
 
 FORMAT = "coco17"
 INTRINSICS = np.array([1000.0, 980.0, 640.0, 360.0])

@@ -6,13 +6,13 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
+from test_factors import assert_jacobians, random_shape, standing_root  # shared helpers (tests/ is on sys.path)
 
 from mocapgraph.body import load_body_model
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
-from mocapgraph.factors.reprojection import ShapeTableCache
 from mocapgraph.factors.keys import camera_key, pose_key, root_key, shape_key
-from test_factors import assert_jacobians, random_shape, standing_root  # shared helpers (tests/ is on sys.path)
+from mocapgraph.factors.reprojection import ShapeTableCache
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from mocapgraph.body.rotations import rotvec_to_matrix
-from mocapgraph.data_tools.io.capture import CaptureError, load_capture
 from mocapgraph.cli.main import main
+from mocapgraph.data_tools.io.capture import CaptureError, load_capture
 from mocapgraph.data_tools.io.importers import (
     CameraCalibration,
     assemble_capture,

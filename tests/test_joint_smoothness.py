@@ -6,13 +6,13 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
+from test_factors import assert_jacobians, random_shape, standing_root  # shared helpers (tests/ is on sys.path)
 
 from mocapgraph.body import load_body_model
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.factors.smoothness import joint_smoothness_factor
-from mocapgraph.factors.reprojection import ShapeTableCache
 from mocapgraph.factors.keys import pose_key, root_key, shape_key
-from test_factors import assert_jacobians, random_shape, standing_root  # shared helpers (tests/ is on sys.path)
+from mocapgraph.factors.reprojection import ShapeTableCache
+from mocapgraph.factors.smoothness import joint_smoothness_factor
 
 
 @pytest.fixture(scope="module")

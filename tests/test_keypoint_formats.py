@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import LinearShapeTable, random_root
+
 from mocapgraph.body.keypoint_formats import FORMATS, format_table, get_format
 from mocapgraph.body.kinematics import forward_kinematics_numpy
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import LinearShapeTable, random_root
 from scipy.spatial.transform import Rotation
 
-from conftest import LinearShapeTable, random_root
 from mocapgraph.body.kinematics import SHAPE_START, forward_kinematics_numpy
 from mocapgraph.body.rotations import matrix_to_rotvec, right_jacobian, rotvec_to_matrix
 from mocapgraph.body.skeleton import PARENTS

@@ -7,8 +7,8 @@ import zlib
 
 import numpy as np
 import pytest
-
 from conftest import LinearShapeTable, random_root
+
 from mocapgraph.body.kinematics import forward_kinematics_numpy
 from mocapgraph.body.native import forward_kinematics, native_module, table_arrays
 from mocapgraph.body.rotations import rotvec_to_matrix

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import random_root
+
 from mocapgraph.data_tools.io.result import CameraTrack, Result, ResultError, load_result, write_result
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mocapgraph.body.rotations import matrix_to_rotvec, rotvec_to_matrix
-from mocapgraph.data_tools.io.capture import SENSOR_FIELDS, Camera, Capture, load_capture, write_capture
 from mocapgraph.data_tools.geometry.camera_model import project_points
+from mocapgraph.data_tools.io.capture import SENSOR_FIELDS, Camera, Capture, load_capture, write_capture
 from mocapgraph.data_tools.sim.scenarios import (
     PRESETS,
     look_at,

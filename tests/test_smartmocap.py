@@ -12,8 +12,8 @@ from mocapgraph.body import load_body_model
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.graphs.state_model import CameraInfo, Estimate, build_state_model
 from mocapgraph.pipelines.smartmocap import SmartmocapOptions, chunk_bounds, run_smartmocap, stitch
-from mocapgraph.pipelines.uncalibrated import Estimate, Rig
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def capture():
 def run(capture, **kw):
     kw.setdefault("motion_prior", "none")
     kw.setdefault("initialiser", "pnp")
-    result = run_smartmocap(capture, SmartmocapOptions(progress=False, **kw))
+    result = run_smartmocap(capture, SmartmocapOptions(**kw))
     return result, evaluate(result, capture).metrics
 
 
@@ -96,8 +96,9 @@ def test_stitching_undoes_each_chunks_heading_and_offset():
     cams = np.tile(np.eye(4), (C, n, 1, 1))
     cams[0, :, :3, 3] = [4.0, 0.0, 2.0]
     cams[1, :, :3, 3] = np.column_stack([np.linspace(-3, 3, n), np.full(n, 4.0), np.full(n, 1.5)])
-    truth = Estimate(roots, rng.normal(scale=0.2, size=(n, 21, 3)), body.default_shape, cams)
-    rig = Rig(["static", "moving"], [False, True], np.zeros((C, 4)), np.arange(n) / 30, np.tile(np.arange(n), (C, 1)), [[]] * n, 0)
+    truth = Estimate(roots, rng.normal(scale=0.2, size=(n, 21, 3)), body.default_shape, list(cams))
+    times = np.arange(n) / 30
+    model = build_state_model([CameraInfo(name, np.eye(3), moving, times, 30.0) for name, moving in (("static", False), ("moving", True))], [], "closest")
     parts = []
     for k, (a, b) in enumerate(chunk_bounds(n, 25)):
         A = np.eye(4)
@@ -105,10 +106,10 @@ def test_stitching_undoes_each_chunks_heading_and_offset():
             c, s = np.cos(0.2 * k), np.sin(0.2 * k)
             A[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
             A[:3, 3] = [0.5 * k, -0.3 * k, 0.0]
-        parts.append((a, b, truth.subset(a, b).transformed(A)))
-    stitched = stitch(body, rig, parts)
+        parts.append((a, b, truth.span(a, b).transformed(A)))
+    stitched = stitch(body, model, parts)
     np.testing.assert_allclose(stitched.roots, truth.roots, atol=1e-9)
-    np.testing.assert_allclose(stitched.cameras, truth.cameras, atol=1e-9)
+    np.testing.assert_allclose(np.stack(stitched.cameras), cams, atol=1e-9)
 
 
 def height_std_m(result) -> float:
@@ -160,9 +161,9 @@ def test_no_detections_is_one_clear_error(capture):
 
 
 def test_command_line(tmp_path, capsys):
+    from mocapgraph.cli.main import main
     from mocapgraph.data_tools.io.capture import write_capture
     from mocapgraph.data_tools.io.result import load_result
-    from mocapgraph.cli.main import main
 
     cap_dir = write_capture(synthesize("rich", seed=3, duration_s=1.0), tmp_path / "cap")
     args = ["run", "smartmocap", str(cap_dir), "--out", str(tmp_path / "res"), "--motion-prior", "none", "--workers", "1", "--quiet", "--no-covariances"]

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.sparse
+from conftest import random_root
 from scipy.spatial.transform import Rotation
 
 from mocapgraph.body import load_body_model
@@ -22,8 +23,6 @@ from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
 from mocapgraph.body.smpl_backend import SMPLBody
 from mocapgraph.errors import MocapgraphError
-
-from conftest import random_root
 
 # The test's own copy of the keypoint vertex ids (smplx package, vertex_ids.py: "smplh" / "smplx").
 SMPL_VERTICES = {

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from mocapgraph.body import load_body_model
+from mocapgraph.cli.main import main
 from mocapgraph.data_tools.geometry.camera_model import project_points
 from mocapgraph.data_tools.io.capture import load_capture, write_capture
 from mocapgraph.data_tools.sim.synthetic import PRESET_DETECTORS, synthesize
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.cli.main import main
 
 
 @pytest.fixture(scope="module")

@@ -14,11 +14,11 @@ from dataclasses import replace
 import numpy as np
 from scipy.stats import chi2
 
-from mocapgraph.data_tools.evaluation.evaluate import evaluate
-from mocapgraph.data_tools.sim.synthetic import synthesize
-from mocapgraph.data_tools.io.result import Result
-from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.geometry.timing import match_times
+from mocapgraph.data_tools.io.result import Result
+from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.pipelines.aircap import AircapOptions, camera_tracks, run_aircap
 from mocapgraph.pipelines.baseline import triangulate_capture
 

@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import Result
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError

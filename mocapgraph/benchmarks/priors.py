@@ -66,8 +66,7 @@ def corrupt(kind: str, root: np.ndarray, pose: np.ndarray, rng: np.random.Genera
 def _held_out_numbers(motion_dir: Path, out: dict) -> None:
     from mocapgraph.data_tools.sim.cmu_motion import load_cmu_take, retarget
     from mocapgraph.priors import load_default_pose_gmm
-    from mocapgraph.priors.motion_vae import decoder_jacobian_ms
-    from mocapgraph.priors.motion_vae import load_default_motion_vae
+    from mocapgraph.priors.motion_vae import decoder_jacobian_ms, load_default_motion_vae
     from mocapgraph.priors.motion_windows import WINDOW, motion_features, window_starts
     from mocapgraph.priors.pose_vae import load_default_pose_vae
     from mocapgraph.priors.training import nearest_mean_geodesic

@@ -1,7 +1,10 @@
 """Body models behind one interface: SMPL's 22 joints, 23 body keypoints, exact Jacobians.
 
 ``load_body_model()`` gives the default, license-free Anny body; ``load_body_model("smpl",
-model_path=...)`` (or ``"smplx"``) reads a user's own licensed model file.
+model_path=...)`` (or ``"smplx"``) reads a user's own licensed model file. Also forward
+kinematics with Jacobians, the keypoint format registry and rotation helpers.
+
+The bottom layer: it may import only ``errors`` and the native kernels.
 """
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ The export (``anny_export``) runs once per Anny version and lands in the user's 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 from functools import lru_cache
@@ -27,6 +28,8 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, NUM_JOINTS, PARENTS
 from mocapgraph.body.table import BodyTable
 from mocapgraph.errors import MocapgraphError
+
+log = logging.getLogger(__name__)
 
 SHAPE_NAMES = ("gender", "age", "muscle", "weight", "height", "proportions")
 
@@ -81,7 +84,7 @@ def ensure_anny_table(rebuild: bool = False) -> Path:
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
     np.savez_compressed(tmp, **arrays)
     os.replace(tmp, path)
-    print(f"mocapgraph: Anny table written to {path}", file=sys.stderr, flush=True)
+    log.info("mocapgraph: Anny table written to %s", path)
     return path
 
 

@@ -13,8 +13,8 @@ zero rotations are a T-pose as in SMPL (see ``docs/body-model.md``).
 
 from __future__ import annotations
 
+import logging
 import os
-import sys
 import time
 from importlib.metadata import version
 
@@ -23,6 +23,8 @@ import numpy as np
 from mocapgraph.body.rotations import axis_rotation, minimal_rotation
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
 from mocapgraph.errors import MocapgraphError
+
+log = logging.getLogger(__name__)
 
 EXPORT_FORMAT = 2
 
@@ -65,10 +67,10 @@ def load_anny_model():
         ) from None
 
     cache = os.environ.get("ANNY_CACHE_DIR", "~/.cache/anny")
-    print(f"mocapgraph: building the Anny body model (first time ~1 min, cache {cache}) ...", file=sys.stderr, flush=True)
+    log.info("mocapgraph: building the Anny body model (first time ~1 min, cache %s) ...", cache)
     start = time.perf_counter()
     model = anny.Anny()
-    print(f"mocapgraph: Anny model ready in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+    log.info("mocapgraph: Anny model ready in %.1f s", time.perf_counter() - start)
     return model
 
 

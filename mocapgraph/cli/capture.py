@@ -1,8 +1,6 @@
-"""Subcommands that make captures from real data: ``mocapgraph detect`` and ``mocapgraph capture import``.
+"""Captures: ``mocapgraph capture info|import`` and ``mocapgraph detect`` (keypoints from videos).
 
-Wire them into the main parser with :func:`add_detect_parser` and :func:`add_import_parser`
-(each registers its command with ``set_defaults(func=...)``). Nothing heavy is imported until
-a command runs.
+Nothing heavy is imported until a command runs.
 """
 
 from __future__ import annotations
@@ -12,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapgraph.cli.common import command, group
+from mocapgraph.data_tools.io.files import refuse_existing
 from mocapgraph.errors import MocapgraphError
 
 
@@ -47,11 +47,6 @@ def _calibration(args):
     from mocapgraph.data_tools.io.importers import read_calibration
 
     return read_calibration(args.calibration, units=args.units) if args.calibration else None
-
-
-def _check_out(args) -> None:
-    if args.out.exists() and not args.overwrite:
-        raise MocapgraphError(f"{args.out}: already exists (pass --overwrite to replace it)")
 
 
 def _summary(path: Path) -> None:
@@ -96,10 +91,10 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_detect(args) -> None:
-    from mocapgraph.data_tools.tracking import detect_video as dv
     from mocapgraph.data_tools.io.importers import assemble_capture, video_info
+    from mocapgraph.data_tools.tracking import detect_video as dv
 
-    _check_out(args)
+    refuse_existing(args.out, args.overwrite)
     videos = _videos(args.videos)
     calibration = _calibration(args)
     rates = {}
@@ -111,7 +106,7 @@ def cmd_detect(args) -> None:
     for name, path in videos.items():
         # a fresh estimator per video: the tracker must not carry a person over from the last one
         with dv.MediaPipePose(args.model_complexity, args.min_confidence) as estimator:
-            kp, boxes, _, _ = dv.detect_video(path, progress=not args.quiet, estimator=estimator)
+            kp, boxes, _, _ = dv.detect_video(path, estimator=estimator)
         keypoints[name] = (dv.DETECTOR_NAME, dv.FORMAT, kp, boxes)
     path = assemble_capture(
         videos, keypoints, calibration, rates, args.out, args.name,
@@ -122,11 +117,10 @@ def cmd_detect(args) -> None:
     _summary(path)
 
 
-def add_detect_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``detect VIDEO... --out CAPTURE`` on a subparsers object; returns its parser."""
-    parser = subparsers.add_parser(
-        "detect",
-        help="detect 2D body keypoints in videos (MediaPipe) and write a capture",
+def _add_detect_parser(subparsers) -> None:
+    parser = command(
+        subparsers, "detect",
+        "detect 2D body keypoints in videos (MediaPipe) and write a capture",
         description="Run MediaPipe Pose (BlazePose, 33 points; the [video] extra) on every frame of each video "
         "and write a capture with one camera per video, named by the file stem or NAME=PATH.",
     )
@@ -137,16 +131,14 @@ def add_detect_parser(subparsers) -> argparse.ArgumentParser:
         help="MediaPipe landmark model; only 1 ships with mediapipe 0.10.14 (default 1)",
     )  # fmt: skip
     parser.add_argument("--min-confidence", type=float, default=0.5, help="detection/tracking threshold (default 0.5)")
-    parser.add_argument("--quiet", action="store_true", help="no progress line")
     _add_common(parser)
     parser.set_defaults(func=cmd_detect)
-    return parser
 
 
 def cmd_import(args) -> None:
     from mocapgraph.data_tools.io.importers import assemble_capture, read_openpose_json_folder
 
-    _check_out(args)
+    refuse_existing(args.out, args.overwrite)
     person: str | int = args.person
     if person != "largest":
         try:
@@ -170,11 +162,10 @@ def cmd_import(args) -> None:
     _summary(path)
 
 
-def add_import_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``import`` on the ``capture`` command's subparsers; returns the ``import`` parser."""
-    parser = subparsers.add_parser(
-        "import",
-        help="make a capture from OpenPose JSON, videos and a calibration",
+def _add_import_parser(subparsers) -> None:
+    parser = command(
+        subparsers, "import",
+        "make a capture from OpenPose JSON, videos and a calibration",
         description="Write a capture from OpenPose --write_json folders (one per camera), videos and a "
         "calibration file. Camera names must agree across them (docs/importing.md).",
     )
@@ -190,4 +181,36 @@ def add_import_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--fps", type=float, required=True, help="frames per second; timestamps are frame / fps")
     _add_common(parser)
     parser.set_defaults(func=cmd_import)
-    return parser
+
+
+def cmd_info(args) -> None:
+    from mocapgraph.data_tools.io.capture import load_capture
+
+    capture = load_capture(args.capture)
+    print(f"capture {capture.name}: {len(capture.cameras)} cameras, world frame: {capture.world_frame}")
+    for cam in capture.cameras:
+        span = cam.timestamps[-1] - cam.timestamps[0]
+        dets = ", ".join(
+            f"{d.name} ({d.format}, {np.isfinite(d.keypoints[..., 0]).mean():.0%} points)" for d in cam.detectors.values()
+        )
+        print(
+            f"  {cam.name:10s} {'moving' if cam.moving else 'static':6s} {cam.num_frames:5d} frames over {span:.1f} s "
+            f"at {cam.frame_rate:g} fps; {cam.image_size[0]}x{cam.image_size[1]}; "
+            f"calibrated: {'yes' if cam.extrinsics is not None else 'no'}; sensors: {', '.join(cam.sensors) or 'none'}"
+        )
+        print(f"  {'':10s} detectors: {dets or 'none'}")
+    gt = capture.ground_truth
+    print(f"ground truth: {'none' if gt is None else f'{len(gt.timestamps)} body states ({gt.body_model}), cameras: {len(gt.cameras)}'}")
+    if capture.notes:
+        print("repaired while loading:")
+        for note in capture.notes:
+            print(f"  {note}")
+
+
+def add_parsers(subparsers) -> None:
+    captures = group(subparsers, "capture", "inspect, import and assemble captures", "capture_command")
+    info = command(captures, "info", "cameras, detectors, sensors and ground truth of a capture")
+    info.add_argument("capture", type=Path, help="capture directory")
+    info.set_defaults(func=cmd_info)
+    _add_import_parser(captures)
+    _add_detect_parser(subparsers)

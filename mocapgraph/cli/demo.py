@@ -19,6 +19,7 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import JOINT_NAMES, PARENTS
+from mocapgraph.cli.common import command
 
 # (take file, frame) pairs chosen for variety: walking, running, waving, dancing.
 CMU_POSES = (("cmu_02_01.npz", 40), ("cmu_09_01.npz", 20), ("cmu_13_26.npz", 150), ("cmu_05_09.npz", 120))
@@ -120,9 +121,9 @@ def draw(body: BodyModel, names: list[str], root: np.ndarray, pose: np.ndarray, 
 
 def run_aircap_demo(out_dir: Path, duration_s: float = 8.0, seed: int = 0) -> Path:
     """Synthesise an ``aircap`` capture, run the pipeline's variants, evaluate, write the report."""
-    from mocapgraph.data_tools.io.capture import write_capture
     from mocapgraph.data_tools.evaluation.evaluate import evaluate
     from mocapgraph.data_tools.evaluation.report import write_report
+    from mocapgraph.data_tools.io.capture import write_capture
     from mocapgraph.data_tools.io.result import write_result
     from mocapgraph.data_tools.sim.synthetic import synthesize
     from mocapgraph.pipelines.aircap import AircapOptions, run_aircap
@@ -149,9 +150,9 @@ def run_aircap_demo(out_dir: Path, duration_s: float = 8.0, seed: int = 0) -> Pa
 def run_smartmocap_demo(out_dir: Path, duration_s: float = 6.0, seed: int = 0) -> Path:
     """Synthesise an uncalibrated ``phones`` capture, run SmartMocap with and without the motion
     prior, evaluate, and write the report with the camera trajectories."""
-    from mocapgraph.data_tools.io.capture import write_capture
     from mocapgraph.data_tools.evaluation.evaluate import evaluate
     from mocapgraph.data_tools.evaluation.report import write_report
+    from mocapgraph.data_tools.io.capture import write_capture
     from mocapgraph.data_tools.io.result import write_result
     from mocapgraph.data_tools.sim.synthetic import synthesize
     from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
@@ -161,8 +162,8 @@ def run_smartmocap_demo(out_dir: Path, duration_s: float = 6.0, seed: int = 0) -
     moving = sum(cam.moving for cam in capture.cameras)
     print(f"synthesised {capture.name}: {len(capture.cameras)} uncalibrated phones ({moving} carried), {duration_s:g} s")
     variants = {
-        "SmartMocap, motion prior": SmartmocapOptions(progress=False),
-        "SmartMocap, no motion prior": SmartmocapOptions(motion_prior="none", covariances=False, progress=False),
+        "SmartMocap, motion prior": SmartmocapOptions(),
+        "SmartMocap, no motion prior": SmartmocapOptions(motion_prior="none", covariances=False),
     }
     results, evaluations = {}, {}
     for label, options in variants.items():
@@ -202,3 +203,23 @@ def run_body_figure(out_dir: Path, motion_dir: Path | None = None) -> Path:
     path = draw(body, names, root, pose, out_dir / "body_poses.png")
     print(f"posed the {body.name} body in {len(names)} {source}: {', '.join(names)}")
     return path
+
+
+def cmd_demo(args) -> None:
+    path = run_demo(args.out, args.motion_dir, duration_s=args.duration, phones_duration_s=args.phones_duration)
+    print(f"wrote {path.resolve()}")
+
+
+def add_parsers(subparsers) -> None:
+    import inspect
+
+    defaults = inspect.signature(run_demo).parameters
+    demo = command(subparsers, "demo", "AirCap and SmartMocap on embedded synthetic captures, reports, and the body model drawn")
+    demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
+    demo.add_argument("--motion-dir", type=Path, help="CMU motion directory (default ../shared/motion/cmu_train)")
+    demo.add_argument("--duration", type=float, default=defaults["duration_s"].default, help=f"seconds of the synthetic aircap capture (default {defaults['duration_s'].default:g})")
+    demo.add_argument(
+        "--phones-duration", type=float, default=defaults["phones_duration_s"].default,
+        help=f"seconds of the uncalibrated phones capture (default {defaults['phones_duration_s'].default:g})",
+    )  # fmt: skip
+    demo.set_defaults(func=cmd_demo)

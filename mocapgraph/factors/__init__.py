@@ -1,10 +1,15 @@
-"""GTSAM factors of the motion-capture graph and the residual kernels behind them.
+"""GTSAM factors of the motion-capture graph, the residual kernels behind them, and their keys.
 
-- :mod:`~mocapgraph.factors.reprojection`: ``reprojection_factor`` (one body state, C cameras,
-  refined or fixed, per-keypoint Geman-McClure inside) and ``ShapeTableCache``.
-- :mod:`~mocapgraph.factors.robust`: ``RobustScale``, the shared kernel scale a solver anneals.
-- :mod:`~mocapgraph.factors.priors`: ``camera_prior_factor`` (robust), ``camera_smoothness_factor``,
-  ``root_smoothness_factor``, ``pose_smoothness_factor`` (second order, any time steps),
-  ``pose_velocity_factor``, ``shape_prior_factor``, ``pose_regularizer_factor``.
-- :mod:`~mocapgraph.factors.reprojection_kernel`: the native residual kernel and its numpy reference.
+- :mod:`~mocapgraph.factors.keys`: the one key scheme of every graph;
+- :mod:`~mocapgraph.factors.reprojection` (+ ``reprojection_kernel``, ``robust``,
+  ``interpolation``): one body state seen by C cameras, per-keypoint Geman-McClure inside;
+- :mod:`~mocapgraph.factors.smoothness`: root, camera, joint-rotation and 3D joint smoothness;
+- :mod:`~mocapgraph.factors.camera_priors` and :mod:`~mocapgraph.factors.body_priors`: priors
+  on camera poses (GPS/IMU), the shape and the joint rotations;
+- :mod:`~mocapgraph.factors.ground`: ground penetration of joints and cameras;
+- :mod:`~mocapgraph.factors.navigation`: GPS/barometer fixes, sensor offsets, IMU parameters;
+- :mod:`~mocapgraph.factors.noise`, :mod:`~mocapgraph.factors.linear`: checked noise models and
+  linear factors with constant Jacobians.
+
+May import only ``body``, ``errors`` and the native kernels.
 """

@@ -28,7 +28,8 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.priors.fusion_regressor import ViewEstimate
+from mocapgraph.graphs.state_model import StateModel
+from mocapgraph.priors.fusion_regressor import ViewEstimate, ViewInput, coco_keypoints, load_default_fusion_regressor
 
 MIN_POINTS = 6
 """Confident keypoints a view needs at a frame to place the body (PnP needs at least 4; 6
@@ -312,3 +313,52 @@ def ground_frame(body: BodyModel, bodies: ViewEstimate, shape) -> GroundEstimate
     y = facing / np.linalg.norm(facing)
     x = np.cross(y, normal)
     return GroundEstimate(_rigid(np.column_stack([x, y, normal]), origin), from_feet, spread)
+
+
+INITIALISERS = ("pnp", "regressor")
+DISAGREEMENT = 0.5
+"""Median relative difference of the body's depth between the regressor and the PnP of the mean
+body above which the regressor's view is replaced by the PnP: the network was trained on
+synthetic views and can be far off on one unlike them, while PnP is only as wrong as the mean body."""
+
+
+def coco_views(model: StateModel) -> list[np.ndarray | None]:
+    """Per camera, ``(N, 17, 3)`` its COCO-17 points at every state, or None without observations."""
+    views = [model.view_keypoints(c) for c in range(model.num_cameras)]
+    return [None if v is None else coco_keypoints(*v) for v in views]
+
+
+def view_bodies(model: StateModel, body: BodyModel, initialiser: str, variant: str = "full") -> tuple[list[ViewEstimate], str]:
+    """Per camera, the body relative to it at every state, from ``initialiser``:
+
+    - ``"pnp"``: the mean body (arms down) placed by PnP, the geometric initialiser;
+    - ``"regressor"``: the fusion regressor (``variant`` of its ablation), AirPose's initialiser,
+      with the PnP for a view where the two disagree by more than :data:`DISAGREEMENT` in depth,
+      and for every view when the regressor's weights cannot be loaded (said in the description).
+
+    Returns the views and a description of what was used."""
+    if initialiser not in INITIALISERS:
+        raise MocapgraphError(f"initialiser {initialiser!r}: choose one of {', '.join(INITIALISERS)}")
+    kps = [model.view_keypoints(c) for c in range(model.num_cameras)]
+    N = model.num_states
+    K = model.camera_matrices()
+    empty = ViewEstimate(np.tile(np.eye(4), (N, 1, 1)), np.zeros((N, NUM_JOINTS - 1, 3)), np.tile(body.default_shape, (N, 1)), np.zeros(N, bool))
+    pnp = [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)]
+    if initialiser == "pnp":
+        return pnp, "pnp"
+    try:
+        regressor = load_default_fusion_regressor(variant)
+    except MocapgraphError as exc:
+        return pnp, f"pnp (the fusion regressor could not be loaded: {exc})"
+    seen = [c for c in range(model.num_cameras) if kps[c] is not None]
+    out = list(pnp)
+    fallback = []
+    for c, p in zip(seen, regressor.predict([ViewInput(kps[c][0], kps[c][1], K[c]) for c in seen])):
+        both = p.valid & pnp[c].valid
+        depth = pnp[c].camera_T_root[both, 2, 3]
+        if both.any() and np.median(np.abs(p.camera_T_root[both, 2, 3] - depth) / depth) > DISAGREEMENT:
+            fallback.append(model.cameras[c].name)
+        else:
+            out[c] = p
+    used = "regressor" if variant == "full" else f"regressor ({variant})"
+    return out, used + (f"; PnP for {', '.join(fallback)} (the two disagreed)" if fallback else "")

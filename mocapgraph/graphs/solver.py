@@ -25,8 +25,8 @@ docs/solver.md describes the loop, the λ policy, the stopping rules and measure
 
 from __future__ import annotations
 
+import logging
 import math
-import sys
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Sequence
@@ -36,6 +36,9 @@ import gtsam
 import numpy as np
 
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.progress import progress_bar
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "SolverOptions",
@@ -102,8 +105,6 @@ class SolverOptions:
     """Elimination order: ``"colamd"``; ``"time"`` (keys in order of first appearance in the graph's
     factors, i.e. the order they were inserted, then any key only in the values); ``"natural"``
     (sorted keys); ``"metis"``; or an explicit key sequence / ``gtsam.Ordering``. Computed once per solve."""
-    verbose: bool = False
-    """Print one line per linear solve to stderr."""
 
     def __post_init__(self) -> None:
         if self.max_iterations < 0:
@@ -431,15 +432,12 @@ def _stop_after_step(opts: SolverOptions, cost: float, decrease: float, step_nor
     return ""
 
 
-def _print_row(row: SolveLog) -> None:
-    print(
-        f"[lm {row.stage or '-'}] it {row.iteration:3d}.{row.attempt:<2d} cost {row.cost_before:.6g} -> "
-        f"{row.cost_after:.6g} pred {row.predicted_decrease:.3g} gain {row.gain:.3g} "
-        f"lambda {row.lambda_:.3g} {'accept' if row.accepted else 'reject'} |step| {row.step_norm:.3g} "
-        f"{row.seconds * 1e3:.1f} ms",
-        file=sys.stderr,
-        flush=True,
-    )
+def _log_row(row: SolveLog) -> None:
+    log.debug(
+        "[lm %s] it %3d.%-2d cost %.6g -> %.6g pred %.3g gain %.3g lambda %.3g %s |step| %.3g %.1f ms",
+        row.stage or "-", row.iteration, row.attempt, row.cost_before, row.cost_after, row.predicted_decrease, row.gain,
+        row.lambda_, "accept" if row.accepted else "reject", row.step_norm, row.seconds * 1e3,
+    )  # fmt: skip
 
 
 def levenberg_marquardt(
@@ -477,7 +475,7 @@ def levenberg_marquardt(
     damping = None if opts.gauss_newton else _Damping(values.dims())
     projection = project if isinstance(project, _Projection) or project is None else _Projection(project, values)
     ordering: gtsam.Ordering | None = None
-    log: list[dict] = []
+    rows: list[dict] = []
     iterations = 0
     reason = "error_tolerance" if cost <= opts.error_tolerance else ""
 
@@ -540,11 +538,10 @@ def levenberg_marquardt(
                 error_seconds=t_end - t_solved,
                 active_set_solves=extra_solves,
             )
-            if opts.verbose:
-                _print_row(row)
-            log.append(row.as_row())
+            _log_row(row)
+            rows.append(row.as_row())
             if on_iteration is not None:
-                on_iteration(log[-1])
+                on_iteration(rows[-1])
 
             if accepted:
                 values, cost = candidate, new_cost
@@ -574,7 +571,7 @@ def levenberg_marquardt(
 
     return SolveResult(
         values=values,
-        log=log,
+        log=rows,
         iterations=iterations,
         error=cost,
         converged=reason in CONVERGED_REASONS,
@@ -590,6 +587,7 @@ def solve_staged(
     graph: gtsam.NonlinearFactorGraph,
     initial: gtsam.Values,
     stages: Sequence[tuple[str, Callable[[], None] | None, SolverOptions | None]],
+    progress: str = "",
     **kw,
 ) -> SolveResult:
     """Run :func:`levenberg_marquardt` once per stage, each from the previous stage's solution.
@@ -600,7 +598,8 @@ def solve_staged(
     every stage; the active set of ``project`` carries over from one stage to the next (a
     bound reached in one stage is held from the next stage's first solve). The result's log
     concatenates the stages (column ``stage``), ``iterations`` sums them, and ``converged`` /
-    ``reason`` are the last stage's.
+    ``reason`` are the last stage's. ``progress`` labels a bar of the iterations (their most:
+    every stage's ``max_iterations``), for solves long enough to wait for.
     """
     if not stages:
         raise MocapgraphError("stages: need at least one (name, setup, options) stage")
@@ -610,11 +609,22 @@ def solve_staged(
     values = initial
     if kw.get("project") is not None:
         kw["project"] = _Projection(kw["project"], initial)
-    log: list[dict] = []
+    rows: list[dict] = []
     iterations = 0
     initial_error = math.nan
     stage_reasons: dict[str, str] = {}
     result: SolveResult | None = None
+    bar = progress_bar(total=sum((o or SolverOptions()).max_iterations for _, _, o in stages), desc=progress, unit="it") if progress else None
+    if bar is not None:
+        given = kw.get("on_iteration")
+
+        def on_iteration(row: dict) -> None:
+            if row["attempt"] == 1:
+                bar.update()
+            if given is not None:
+                given(row)
+
+        kw["on_iteration"] = on_iteration
     for name, setup, options in stages:
         if setup is not None:
             setup()
@@ -622,13 +632,15 @@ def solve_staged(
         if math.isnan(initial_error):
             initial_error = result.initial_error
         values = result.values
-        log.extend(result.log)
+        rows.extend(result.log)
         iterations += result.iterations
         stage_reasons[name] = result.reason
+    if bar is not None:
+        bar.close()
     assert result is not None
     return SolveResult(
         values=values,
-        log=log,
+        log=rows,
         iterations=iterations,
         error=result.error,
         converged=result.converged,
@@ -678,3 +690,25 @@ def marginal_covariances(
     linear = graph.linearize(values)
     marginals = gtsam.Marginals(linear, values)
     return {key: np.array(marginals.marginalCovariance(key)) for key in wanted}
+
+
+HOLD_SIGMA = 1e-5
+"""σ (rad, m) of the priors that hold a variable at its value during a phase of a solve."""
+
+
+def held(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: Iterable[int]) -> gtsam.NonlinearFactorGraph:
+    """A copy of ``graph`` with every key of ``keys`` (those in ``values``) held at its value by a
+    stiff prior. Stiff rows rather than removing the variables: the graph's structure and its
+    elimination order stay as they are, and the same graph gives the covariances with them free."""
+    out = gtsam.NonlinearFactorGraph(graph)
+    for key in keys:
+        if not values.exists(key):
+            continue
+        try:
+            pose = values.atPose3(key)
+        except RuntimeError:
+            vec = values.atVector(key)
+            out.add(gtsam.PriorFactorVector(key, vec, gtsam.noiseModel.Isotropic.Sigma(len(vec), HOLD_SIGMA)))
+        else:
+            out.add(gtsam.PriorFactorPose3(key, pose, gtsam.noiseModel.Isotropic.Sigma(6, HOLD_SIGMA)))
+    return out

@@ -17,36 +17,24 @@ model's size alone.
 
 from __future__ import annotations
 
+import logging
 import time
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import dataclass, field
 
-import gtsam
 import numpy as np
 
 from mocapgraph.body import load_body_model
-from mocapgraph.data_tools.io.capture import Capture, load_capture
-from mocapgraph.data_tools.evaluation.evaluate import PER_FRAME_CAMERA
-from mocapgraph.data_tools.io.result import Result, options_parameters, write_result
+from mocapgraph.data_tools.io.capture import Capture
+from mocapgraph.data_tools.io.result import PER_FRAME_CAMERA, Result, options_parameters
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.initialisation import fuse_bodies, fused_shape, relative_cameras
-from mocapgraph.graphs.solver import solve_staged
-from mocapgraph.pipelines.uncalibrated import (
-    INITIALISERS,
-    Estimate,
-    GraphOptions,
-    Rig,
-    RigGraph,
-    add_covariances,
-    held_shape,
-    hold,
-    log,
-    rig_from_capture,
-    rig_result,
-    time_ordering,
-    view_bodies,
-)
+from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions
+from mocapgraph.graphs.initialisation import INITIALISERS, fuse_bodies, fused_shape, relative_cameras, view_bodies
+from mocapgraph.graphs.solver import held, solve_staged
+from mocapgraph.graphs.state_model import Estimate
+from mocapgraph.pipelines.observations import capture_state_model
+from mocapgraph.pipelines.results import estimate_result
 
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -62,21 +50,14 @@ class AirposeOptions:
     iterations: int = 30
     detectors: tuple[str, ...] | None = None
     covariances: bool = True
-    progress: bool = True
     graph: GraphOptions = field(default_factory=GraphOptions)
 
     def check(self) -> None:
+        self.graph.check()
         if self.initialiser not in INITIALISERS:
             raise MocapgraphError(f"initialiser {self.initialiser!r}: choose one of {', '.join(INITIALISERS)}")
         if not (np.isfinite(self.min_confidence) and self.min_confidence >= 0):
             raise MocapgraphError(f"min_confidence: a finite number >= 0, got {self.min_confidence!r}")
-
-
-def _kept(rig: Rig, keep: np.ndarray) -> Rig:
-    """The rig's states where ``keep``; every camera moves relative to camera 1 unless both are static."""
-    moving = [bool(m or rig.moving[rig.reference]) for m in rig.moving]
-    idx = np.flatnonzero(keep)
-    return replace(rig, moving=moving, times=rig.times[idx], frames=rig.frames[:, idx], states=[rig.states[i] for i in idx])
 
 
 def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture_label: str = "") -> Result:
@@ -84,62 +65,56 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     options = options or AirposeOptions()
     options.check()
     t_start = time.perf_counter()
-    say = lambda m: log("airpose", options.progress, m)  # noqa: E731
     body = load_body_model()
-    full = rig_from_capture(capture, options.detectors, reference=0)
-    if not any(o.camera == 0 for obs in full.states for o in obs):
+    full = capture_state_model(capture, "closest", detectors=options.detectors, reference=0)
+    if 0 not in full.observed_cameras():
         raise MocapgraphError(f"capture {capture.name!r}: camera 1 ({full.names[0]}) has no detections; AirPose's world is camera 1's frame")
-    weight = full.keypoint_weight()
-    keep = weight >= options.min_confidence
+    keep = full.keypoint_weight() >= options.min_confidence
     if keep.sum() < 2:
         raise MocapgraphError(
             f"capture {capture.name!r}: {int(keep.sum())} frames have a total keypoint confidence >= {options.min_confidence}; need 2"
         )
-    rig = _kept(full, keep)
+    # Relative to camera 1 every camera moves, unless both are static.
+    reference_moves = full.cameras[0].moving
+    model = full.select(np.flatnonzero(keep)).with_moving([cam.moving or reference_moves for cam in full.cameras])
     notes = list(capture.notes)
     if (~keep).any():
         notes.append(f"{int((~keep).sum())} of {len(keep)} frames left out: total keypoint confidence below {options.min_confidence}")
-    views, used = view_bodies(rig, body, options.initialiser, options.regressor_variant)
+    views, used = view_bodies(model, body, options.initialiser, options.regressor_variant)
     notes.append(f"initialised from the {used}")
-    ref_T_c, known = relative_cameras(views, rig.moving, 0)
-    placed = [bool(known[c].any()) for c in range(rig.num_cameras)]
-    for c in range(1, rig.num_cameras):
+    ref_T_c, known = relative_cameras(views, [cam.moving for cam in model.cameras], 0)
+    placed = [bool(known[c].any()) for c in range(model.num_cameras)]
+    for c in range(1, model.num_cameras):
         if not placed[c]:
-            notes.append(f"camera {rig.names[c]}: never saw the person together with camera 1; not estimated")
+            notes.append(f"camera {model.names[c]}: never saw the person together with camera 1; not estimated")
     if sum(placed) == 1:
         notes.append("camera 1 alone: depth along its rays rests on the body's size and the priors; expect large covariances along them")
     notes.append("absolute scale: from the body model's size (shape prior) alone; the shape's covariance carries it")
-    rig = rig.only(placed)
+    model = model.only(placed)
     fused = fuse_bodies(views, ref_T_c, known)
-    shape = fused_shape(body, fused)
-    estimate = Estimate(fused.camera_T_root, fused.pose, shape, ref_T_c)
+    cameras = [model.frames_from_states(c, ref_T_c[c]) for c in range(model.num_cameras)]
+    estimate = Estimate(fused.camera_T_root, fused.pose, fused_shape(body, fused), cameras)
     for note in notes:
-        say(note)
-    n = len(rig.states)
-    rg = RigGraph(rig, body, options.graph, fixed_cameras={0: np.tile(np.eye(4), (n, 1, 1))})
+        log.info("airpose: %s", note)
+    bg = BodyGraph(model, body, options.graph, fixed_cameras={0: np.tile(np.eye(4), (len(capture.cameras[0].timestamps), 1, 1))})
     graph = values = None
-    log_rows: list[dict] = []
     if options.refine:
-        graph = gtsam.NonlinearFactorGraph()
-        for i in range(n):
-            rg.add_state(graph, i)
-            if i:
-                rg.add_smoothness(graph, i)
-        rg.add_shape_prior(graph)
-        values = rg.values(estimate)
-        say(f"AirPose+: {n} frames, {len(rg.camera_keys())} camera poses")
-        stages = rg.stages(options.iterations, time_ordering(rg, values))
-        solved = solve_staged(hold(graph, values, held_shape(options.graph)), values, stages, project=rg.project_shape)
+        graph, values = bg.sequence(estimate)
+        log.info("airpose: AirPose+, %d frames, %d camera poses", model.num_states, len(bg.camera_vars()))
+        stages = bg.stages(options.iterations, bg.time_ordering(values))
+        solved = solve_staged(held(graph, values, bg.held_keys()), values, stages, progress="AirPose+", project=bg.project_shape)
         values = solved.values
-        estimate = rg.read(values, estimate)
-        log_rows = list(solved.log)
+        estimate = bg.read(values, estimate)
+        estimate.log = list(solved.log)
     seconds = time.perf_counter() - t_start
-    result = rig_result("airpose", capture, rig, body, estimate, PER_FRAME_CAMERA + rig.names[0], options_parameters(options), capture_label, placed)
-    result.log = log_rows
+    placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
+    result = estimate_result(
+        "airpose", capture, model, body, estimate, PER_FRAME_CAMERA + model.names[0], options_parameters(options), capture_label, cameras=placed_cameras
+    )  # fmt: skip
     if options.covariances and graph is not None:
-        add_covariances(result, rg, graph, values, estimate)
+        result.covariances.update(bg.covariances(graph, values, estimate))
     result = _with_left_out(result, full.times, keep)
-    result.parameters.update(initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(n / max(seconds, 1e-9), 2), notes=notes)
+    result.parameters.update(initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes)
     return result
 
 
@@ -164,17 +139,13 @@ def _with_left_out(result: Result, times: np.ndarray, keep: np.ndarray) -> Resul
     return result
 
 
-def run_airpose_command(capture_path: Path, out: Path, options: AirposeOptions, overwrite: bool = False) -> Result:
-    """``mocapgraph run airpose``: load, run, write, and print a short summary."""
-    capture = load_capture(capture_path)
-    result = run_airpose(capture, options, capture_label=str(capture_path))
-    write_result(result, out, overwrite=overwrite)
+def summary(result: Result) -> str:
+    """What ``run airpose`` prints: a line and the notes."""
     p = result.parameters
-    kind = "AirPose+" if options.refine else "AirPose (initialiser only)"
-    print(
+    kind = "AirPose+" if p["refine"] else "AirPose (initialiser only)"
+    reference = result.world_frame.removeprefix(PER_FRAME_CAMERA)
+    lines = [
         f"airpose: {kind}, {int((~result.flags['left_out']).sum())} of {len(result.timestamps)} frames, "
-        f"{len(result.cameras)} cameras, {p['seconds']:.1f} s ({p['frames_per_second']:.1f} frames/s); world: camera {capture.cameras[0].name}'s frame per frame"
-    )
-    for note in p["notes"]:
-        print(f"  note: {note}")
-    return result
+        f"{len(result.cameras)} cameras, {p['seconds']:.1f} s ({p['frames_per_second']:.1f} frames/s); world: camera {reference}'s frame per frame"
+    ]
+    return "\n".join(lines + [f"  note: {note}" for note in p["notes"]])

@@ -11,8 +11,8 @@ timestamps in seconds; camera poses ``world_T_camera`` (OpenCV camera, +z forwar
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -26,9 +26,11 @@ from mocapgraph.data_tools.geometry.triangulation import (
     projection_matrix,
     triangulate_ransac,
 )
-from mocapgraph.data_tools.io.capture import Camera, Capture, load_capture
-from mocapgraph.data_tools.io.result import Result, write_result
+from mocapgraph.data_tools.io.capture import Camera, Capture
+from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
+
+log = logging.getLogger(__name__)
 
 _FRAMES_PER_CHUNK = 256
 
@@ -57,12 +59,19 @@ class Triangulation:
     detector: str = ""
 
 
-def run_baseline(
-    capture_path: Path, out: Path, detector: str | None = None, threshold_px: float = DEFAULT_THRESHOLD_PX,
-    seed: int = 0, overwrite: bool = False,
-) -> Result:  # fmt: skip
-    """Triangulate every frame from the capture's calibrated cameras and write the result at ``out``."""
-    capture = load_capture(capture_path)
+@dataclass
+class BaselineOptions:
+    """Parameters of the triangulation baseline."""
+
+    detector: str | None = None  # default: the first detector every camera has
+    threshold_px: float = DEFAULT_THRESHOLD_PX  # RANSAC inlier threshold
+    seed: int = 0  # RANSAC's pair sampling
+
+
+def run_baseline(capture: Capture, options: BaselineOptions | None = None, capture_label: str = "") -> Result:
+    """Triangulate every frame from the capture's calibrated cameras (the others are skipped, and
+    the result's parameters say which); nothing written."""
+    options = options or BaselineOptions()
     calibrated = [cam for cam in capture.cameras if cam.extrinsics is not None]
     skipped = [cam.name for cam in capture.cameras if cam.extrinsics is None]
     if len(calibrated) < 2:
@@ -71,31 +80,35 @@ def run_baseline(
             f"{len(calibrated)} (uncalibrated: {', '.join(skipped) or 'none'})"
         )
     if skipped:
-        print(f"baseline: skipping uncalibrated cameras {', '.join(skipped)}")
-    tri = triangulate_capture(replace(capture, cameras=calibrated), detector=detector, threshold_px=threshold_px, seed=seed)
+        log.info("baseline: skipping uncalibrated cameras %s", ", ".join(skipped))
+    tri = triangulate_capture(replace(capture, cameras=calibrated), detector=options.detector, threshold_px=options.threshold_px, seed=options.seed)
     T = len(tri.timestamps)
-    result = Result(
+    known = np.isfinite(tri.points).all(axis=2)
+    return Result(
         pipeline="baseline",
-        capture=str(capture_path),
+        capture=capture_label or str(capture.path or capture.name),
         world_frame="capture",
         timestamps=tri.timestamps,
         joints=np.full((T, NUM_JOINTS, 3), np.nan),
         keypoints=tri.points,
         keypoint_format=tri.format,
-        flags={
-            "num_views": tri.inliers.any(axis=2).sum(axis=1),
-            "points_triangulated": np.isfinite(tri.points).all(axis=2).sum(axis=1),
+        flags={"num_views": tri.inliers.any(axis=2).sum(axis=1), "points_triangulated": known.sum(axis=1)},
+        parameters={
+            **options_parameters(options), "detector": tri.detector, "threshold_px": float(options.threshold_px),
+            "cameras": list(tri.cameras), "skipped_cameras": skipped, "triangulated_share": float(known.mean()),
+            "median_reprojection_error_px": float(np.nanmedian(tri.reprojection_error_px)) if known.any() else float("nan"),
         },
-        parameters={"detector": tri.detector, "threshold_px": float(threshold_px), "seed": seed},
+    )  # fmt: skip
+
+
+def summary(result: Result) -> str:
+    """The line ``run baseline`` prints."""
+    p = result.parameters
+    skipped = f"baseline: skipping uncalibrated cameras {', '.join(p['skipped_cameras'])}\n" if p["skipped_cameras"] else ""
+    return (
+        f"{skipped}baseline: {len(result.timestamps)} frames from {len(p['cameras'])} cameras ({p['detector']}, {result.keypoint_format}); "
+        f"{p['triangulated_share']:.0%} of keypoints triangulated, median reprojection error {p['median_reprojection_error_px']:.1f} px"
     )
-    write_result(result, out, overwrite=overwrite)
-    known = np.isfinite(tri.points).all(axis=2)
-    print(
-        f"baseline: {T} frames from {len(tri.cameras)} cameras ({tri.detector}, {tri.format}); "
-        f"{known.mean():.0%} of keypoints triangulated, median reprojection error "
-        f"{np.nanmedian(tri.reprojection_error_px):.1f} px"
-    )
-    return result
 
 
 def triangulate_capture(

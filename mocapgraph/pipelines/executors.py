@@ -8,12 +8,13 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
-import sys
 from typing import Callable
 
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.progress import progress_bar
 
 EXECUTORS = ("local", "ray")
 
@@ -55,26 +56,29 @@ class Executor:
     def close(self) -> None:
         """Release the workers (idempotent)."""
 
-    def map(self, fn: Callable, items: list, progress: str | None = None) -> list:
-        """``[fn(item) for item in items]``, computed as one task per item.
+    def map(self, fn: Callable, items: list, progress: str = "", context=None) -> list:
+        """``[fn(item) for item in items]`` (``fn(context, item)`` with a ``context``), computed as
+        one task per item.
 
         ``fn`` must be picklable: a module-level function (pickled by reference, so the workers
         must be able to import its module), a builtin, or a ``functools.partial`` of those; the
-        items and results must be picklable too. Every task runs to the end even when some
-        fail; then, if any failed, a :class:`TaskError` names the first failed task's index and
-        message and carries every result. With ``progress`` set, prints ``"<progress>: k/n done"`` to stderr as tasks end.
+        items and results must be picklable too. ``context`` is what every task shares (a
+        problem, a model): it reaches the workers once, not with every item (forked workers
+        inherit it; Ray stores it once). Every task runs to the end even when some fail; then,
+        if any failed, a :class:`TaskError` names the first failed task's index and message and
+        carries every result. ``progress`` labels a progress bar of the tasks as they end.
         """
         items = list(items)
         results: list = [None] * len(items)
         failures: dict[int, str] = {}
         causes: dict[int, BaseException] = {}
-        for done, (i, ok, value) in enumerate(self._run(fn, items), start=1):
-            if ok:
-                results[i] = value
-            else:
-                failures[i], causes[i] = describe_exception(value), value
-            if progress:
-                print(f"{progress}: {done}/{len(items)} done", file=sys.stderr, flush=True)
+        with progress_bar(total=len(items), desc=progress, unit="task") as bar:
+            for i, ok, value in self._run(fn, items, context):
+                if ok:
+                    results[i] = value
+                else:
+                    failures[i], causes[i] = describe_exception(value), value
+                bar.update()
         if failures:
             first = min(failures)
             more = f" ({len(failures) - 1} more failed: tasks {', '.join(map(str, sorted(failures)[1:]))})" if len(failures) > 1 else ""
@@ -83,9 +87,17 @@ class Executor:
             ) from causes[first]
         return results
 
-    def _run(self, fn: Callable, items: list):
+    def _run(self, fn: Callable, items: list, context):
         """Yields ``(index, ok, result or exception)`` once per item, in completion order."""
         raise NotImplementedError
+
+
+_CONTEXT = None
+"""The context of the local pool's current map, inherited by its forked workers."""
+
+
+def _with_context(fn: Callable, item):
+    return fn(_CONTEXT, item)
 
 
 class LocalExecutor(Executor):
@@ -99,27 +111,38 @@ class LocalExecutor(Executor):
     def __init__(self, workers: int):
         self.workers = workers
         self._pool = None
+        self._pool_context = None
 
-    def _run(self, fn, items):
+    def _run(self, fn, items, context):
+        call = fn if context is None else functools.partial(fn, context)
         if self.workers == 1:
             for i, item in enumerate(items):
                 try:
-                    yield i, True, fn(item)
+                    yield i, True, call(item)
                 except Exception as exc:  # reported per task, as from the pool
                     yield i, False, exc
             return
         from concurrent.futures import as_completed
 
-        futures = {self._get_pool().submit(fn, item): i for i, item in enumerate(items)}
+        pool = self._get_pool(context)
+        task = fn if context is None else functools.partial(_with_context, fn)
+        futures = {pool.submit(task, item): i for i, item in enumerate(items)}
         for future in as_completed(futures):
             exc = future.exception()
             yield futures[future], exc is None, future.result() if exc is None else exc
 
-    def _get_pool(self):
+    def _get_pool(self, context):
+        """The pool, forked afresh when the context changed (its workers hold the old one)."""
+        global _CONTEXT
+        if self._pool is not None and self._pool_context is not context:
+            self.close()
         if self._pool is None:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
+            # A fork pool starts all its workers at the first submit, which follows at once: they
+            # inherit this context.
+            _CONTEXT, self._pool_context = context, context
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("fork"))
         return self._pool
 
@@ -127,6 +150,7 @@ class LocalExecutor(Executor):
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+            self._pool_context = None
 
 
 def _apply(fn: Callable, item):
@@ -160,11 +184,12 @@ class RayExecutor(Executor):
             where = f"the Ray cluster at {address}" if address else "a local Ray instance"
             raise MocapgraphError(f"could not start or join {where}: {describe_exception(exc)}") from exc
 
-    def _run(self, fn, items):
+    def _run(self, fn, items, context):
         ray = self._ray
         # One trampoline rather than ray.remote(fn): it also takes builtins and functools.partial,
-        # and the function is shipped to the object store once, not with every task.
-        apply, fn_ref = ray.remote(_apply), ray.put(fn)
+        # and the function and the context are shipped to the object store once, not with every task.
+        apply = ray.remote(_apply)
+        fn_ref = ray.put(fn if context is None else functools.partial(fn, context))
         pending = {apply.remote(fn_ref, item): i for i, item in enumerate(items)}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)

@@ -21,39 +21,43 @@ a weak one, so the data decide them. The scale comes from the body model's size 
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import gtsam
 import numpy as np
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
-from mocapgraph.data_tools.io.capture import Capture, load_capture
-from mocapgraph.data_tools.io.result import Result, options_parameters, write_result
+from mocapgraph.data_tools.io.capture import Capture
+from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.initialisation import fuse_bodies, fused_shape, ground_frame, moving_cameras_from_static, relative_cameras, rotation_mean
 from mocapgraph.factors.keys import pose_key, root_key, shape_key
-from mocapgraph.graphs.solver import solve_staged
-from mocapgraph.pipelines.uncalibrated import (
+from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions, LearnedPriors, motion_windows
+from mocapgraph.graphs.initialisation import (
     INITIALISERS,
-    Estimate,
-    GraphOptions,
-    Rig,
-    RigGraph,
-    add_covariances,
-    held_shape,
-    hold,
-    log,
-    rig_from_capture,
-    rig_result,
-    time_ordering,
+    coco_views,
+    fuse_bodies,
+    fused_shape,
+    ground_frame,
+    moving_cameras_from_static,
+    relative_cameras,
+    rotation_mean,
     view_bodies,
 )
+from mocapgraph.graphs.solver import held, solve_staged
+from mocapgraph.graphs.state_model import Estimate, StateModel
+from mocapgraph.pipelines.executors import make_executor
+from mocapgraph.pipelines.observations import capture_state_model
+from mocapgraph.pipelines.results import estimate_result
 from mocapgraph.priors.motion_windows import WINDOW
 
+log = logging.getLogger(__name__)
+
 MOTION_PRIORS = ("vae", "none")
+MOTION_GROUND_SIGMAS = (1e-4, 1e-4)
+"""σ (rad, m) of the motion prior's ground at z = 0: SmartMocap's world is the ground plane."""
 
 
 @dataclass
@@ -74,7 +78,6 @@ class SmartmocapOptions:
     # The first root holds the world's gauge: stiff horizontally and in heading, weak in height and tilt.
     gauge_sigmas: tuple[float, float] = (1e-3, 0.1)
     covariances: bool = True
-    progress: bool = True
     # The shape estimated: with several views it is observable, and on a CMU walk seen by the rich
     # rig it halved the root orientation error (RA-MPJPE 3.7 -> 2.1 cm) and brought the scene's
     # scale within 4.4 % instead of 7.2 % for the held average body (measured). AirPose's two far
@@ -82,6 +85,7 @@ class SmartmocapOptions:
     graph: GraphOptions = field(default_factory=lambda: GraphOptions(shape="estimate"))
 
     def check(self) -> None:
+        self.graph.check()
         if self.initialiser not in INITIALISERS:
             raise MocapgraphError(f"initialiser {self.initialiser!r}: choose one of {', '.join(INITIALISERS)}")
         if self.motion_prior not in MOTION_PRIORS:
@@ -109,35 +113,13 @@ def _gauge_factor(estimate: Estimate, sigmas: tuple[float, float]) -> gtsam.Prio
     return gtsam.PriorFactorPose3(root_key(0), gtsam.Pose3(estimate.roots[0]), noise)
 
 
-def _motion_windows(n: int) -> list[int]:
-    """Window starts over ``n`` states: side by side, plus one ending at the last state."""
-    starts = list(range(0, n - WINDOW + 1, WINDOW))
-    if starts and starts[-1] + WINDOW < n:
-        starts.append(n - WINDOW)
-    return starts
-
-
-def sequence_graph(rg: RigGraph, estimate: Estimate, motion_vae, gauge_sigmas) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]]:
-    """Every SmartMocap term over the rig's states; the values at ``estimate``; the motion windows."""
-    from mocapgraph.priors.motion_factor import MotionVAEPrior
-
-    graph = gtsam.NonlinearFactorGraph()
-    n = len(rg.rig.states)
-    for i in range(n):
-        rg.add_state(graph, i)
-        rg.add_ground(graph, i)
-        if i:
-            rg.add_smoothness(graph, i)
-    rg.add_shape_prior(graph)
-    rg.add_camera_ground(graph)
+def sequence_graph(bg: BodyGraph, estimate: Estimate, gauge_sigmas) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """Every SmartMocap term over the model's states (the motion prior on windows side by side
+    when the model has at least one); the values at ``estimate``."""
+    graph, values = bg.sequence(estimate, ground=True)
     graph.add(_gauge_factor(estimate, gauge_sigmas))
-    values = rg.values(estimate)
-    windows = _motion_windows(n) if motion_vae is not None else []
-    if windows:
-        # SmartMocap's world is the ground plane: the windows' ground is held at z = 0.
-        prior = MotionVAEPrior(motion_vae, rg.body, windows, shape_key=shape_key(), table_cache=rg.cache("body"), ground_sigmas=(1e-4, 1e-4))
-        prior.add_to(graph, values)
-    return graph, values, windows
+    bg.add_motion_prior(graph, values, motion_windows(bg.model.num_states), MOTION_GROUND_SIGMAS)
+    return graph, values
 
 
 # ---------------------------------------------------------------------------------------------
@@ -148,7 +130,7 @@ def sequence_graph(rg: RigGraph, estimate: Estimate, motion_vae, gauge_sigmas) -
 class ChunkTask:
     """One chunk, self-contained so that it pickles for a process or a Ray task."""
 
-    rig: Rig
+    model: StateModel
     start: Estimate
     options: SmartmocapOptions
 
@@ -162,33 +144,22 @@ def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     o = task.options
-    body = load_body_model()
-    vae = _motion_vae(o)
-    rg = RigGraph(task.rig, body, o.graph)
-    n = len(task.rig.states)
-    graph, values, windows = sequence_graph(rg, task.start, vae if n == WINDOW else None, o.gauge_sigmas)
+    n = task.model.num_states
+    bg = BodyGraph(task.model, load_body_model(), o.graph, learned=LearnedPriors.load(o.graph.pose_prior, o.motion_prior if n == WINDOW else "none"))
+    graph, values = sequence_graph(bg, task.start, o.gauge_sigmas)
     body_keys = [root_key(i) for i in range(n)] + [pose_key(i) for i in range(n)] + [shape_key()]
     phases = [
         ("cameras", body_keys),
         ("cameras+roots", [pose_key(i) for i in range(n)] + [shape_key()]),
-        ("all but the first root", [root_key(0)] + held_shape(o.graph)),
+        ("all but the first root", [root_key(0)] + bg.held_keys()),
     ]
-    ordering = time_ordering(rg, values, windows)
-    for k, (_, held) in enumerate(phases):
+    ordering = bg.time_ordering(values)
+    for k, (_, keys) in enumerate(phases):
         # The first phase anneals from L2 to Geman-McClure; the later ones start near the solution
         # and stay robust (an L2 stage each cost a third of a chunk's solves for nothing, measured).
-        stages = rg.stages(o.chunk_iterations, ordering)[0 if k == 0 else 1 :]
-        result = solve_staged(hold(graph, values, held), values, stages, project=rg.project_shape)
-        values = result.values
-    return rg.read(values, task.start), time.perf_counter() - t0
-
-
-def _motion_vae(options: SmartmocapOptions):
-    if options.motion_prior == "none":
-        return None
-    from mocapgraph.priors.motion_vae import load_default_motion_vae
-
-    return load_default_motion_vae()
+        stages = bg.stages(o.chunk_iterations, ordering)[0 if k == 0 else 1 :]
+        values = solve_staged(held(graph, values, keys), values, stages, project=bg.project_shape).values
+    return bg.read(values, task.start), time.perf_counter() - t0
 
 
 def chunk_bounds(n: int, size: int) -> list[tuple[int, int]]:
@@ -221,15 +192,16 @@ def _yaw_alignment(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     return A
 
 
-def stitch(body: BodyModel, rig: Rig, parts: list[tuple[int, int, Estimate]]) -> Estimate:
+def stitch(body: BodyModel, model: StateModel, parts: list[tuple[int, int, Estimate]]) -> Estimate:
     """One estimate from chunk estimates that share their boundary states.
 
     Neighbours are merged pairwise, then pairs of pairs (a tree, not a chain). Each merge moves
     the right block onto the left by the heading and translation that best align their shared
     state's joints and the static cameras both blocks estimated; the shared state keeps the left
-    block's body, a static camera the chordal mean of both weighted by their states.
+    block's body, a moving camera the right block's frames after it, a static camera the chordal
+    mean of both weighted by their states.
     """
-    static = [c for c in range(rig.num_cameras) if not rig.moving[c]]
+    static = [c for c in range(model.num_cameras) if not model.cameras[c].moving]
     blocks = list(parts)
     while len(blocks) > 1:
         merged = []
@@ -237,19 +209,19 @@ def stitch(body: BodyModel, rig: Rig, parts: list[tuple[int, int, Estimate]]) ->
             (a0, b0, left), (a1, b1, right) = blocks[p], blocks[p + 1]
             s = a1 - a0  # the shared state, in the left block's numbering
             fk = body.forward(left.shape, np.stack([left.roots[s], right.roots[0]]), np.stack([left.poses[s], right.poses[0]]))
-            src, dst = [fk.joints[1]], [fk.joints[0]]
-            for c in static:
-                src.append(right.cameras[c, :1, :3, 3])
-                dst.append(left.cameras[c, :1, :3, 3])
-            moved = right.transformed(_yaw_alignment(np.concatenate(src), np.concatenate(dst)))
-            cams = np.concatenate([left.cameras, moved.cameras[:, 1:]], axis=1)
+            src = np.concatenate([fk.joints[1]] + [right.cameras[c][:1, :3, 3] for c in static])
+            dst = np.concatenate([fk.joints[0]] + [left.cameras[c][:1, :3, 3] for c in static])
+            moved = right.transformed(_yaw_alignment(src, dst))
+            cameras = [c.copy() for c in left.cameras]
+            for c in range(model.num_cameras):
+                after = model.camera_frames(c, range(a1 + 1, b1))
+                cameras[c][after] = moved.cameras[c][after]
             wl, wr = b0 - a0, b1 - a1
             for c in static:
-                R = rotation_mean(np.stack([left.cameras[c, 0, :3, :3], moved.cameras[c, 0, :3, :3]]), [wl, wr])
-                t = (wl * left.cameras[c, 0, :3, 3] + wr * moved.cameras[c, 0, :3, 3]) / (wl + wr)
-                cams[c, :, :3, :3], cams[c, :, :3, 3] = R, t
+                cameras[c][:, :3, :3] = rotation_mean(np.stack([left.cameras[c][0, :3, :3], moved.cameras[c][0, :3, :3]]), [wl, wr])
+                cameras[c][:, :3, 3] = (wl * left.cameras[c][0, :3, 3] + wr * moved.cameras[c][0, :3, 3]) / (wl + wr)
             shape = (wl * left.shape + wr * moved.shape) / (wl + wr)
-            est = Estimate(np.concatenate([left.roots, moved.roots[1:]]), np.concatenate([left.poses, moved.poses[1:]]), shape, cams)
+            est = Estimate(np.concatenate([left.roots, moved.roots[1:]]), np.concatenate([left.poses, moved.poses[1:]]), shape, cameras)
             merged.append((a0, b1, est))
         if len(blocks) % 2:
             merged.append(blocks[-1])
@@ -269,16 +241,15 @@ def _reference_camera(capture: Capture, seen: list[bool]) -> int:
     return seen.index(True)
 
 
-def initial_estimate(
-    capture: Capture, rig: Rig, body: BodyModel, options: SmartmocapOptions, notes: list[str]
-) -> tuple[Estimate, list[bool], str]:
+def initial_estimate(model: StateModel, body: BodyModel, options: SmartmocapOptions, reference: int, notes: list[str]) -> tuple[Estimate, list[bool], str]:
     """Body and cameras in SmartMocap's world from the views; which cameras could be placed;
     which initialiser gave the views."""
-    views, used = view_bodies(rig, body, options.initialiser)
+    views, used = view_bodies(model, body, options.initialiser)
     notes.append(f"initialised from the {used}")
-    ref_T_c, known = relative_cameras(views, rig.moving, rig.reference)
-    ref_T_c, known = moving_cameras_from_static([rig.coco_keypoints(c) for c in range(rig.num_cameras)], rig.camera_matrices(), ref_T_c, known, rig.moving)
-    placed = [bool(known[c].any()) for c in range(rig.num_cameras)]
+    moving = [cam.moving for cam in model.cameras]
+    ref_T_c, known = relative_cameras(views, moving, reference)
+    ref_T_c, known = moving_cameras_from_static(coco_views(model), model.camera_matrices(), ref_T_c, known, moving)
+    placed = [bool(known[c].any()) for c in range(model.num_cameras)]
     fused = fuse_bodies(views, ref_T_c, known)
     shape = fused_shape(body, fused)
     ground = ground_frame(body, fused, shape)
@@ -288,23 +259,22 @@ def initial_estimate(
             "direction and rests on the motion prior and the weak gauge prior (its covariance says how well)"
         )
     world_T_ref = np.linalg.inv(ground.ref_T_world)
-    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, world_T_ref @ ref_T_c), placed, used
+    cameras = [model.frames_from_states(c, world_T_ref @ ref_T_c[c]) for c in range(model.num_cameras)]
+    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, cameras), placed, used
 
 
-def _degeneracy_notes(rig: Rig, placed: list[bool]) -> list[str]:
+def _degeneracy_notes(model: StateModel, placed: list[bool]) -> list[str]:
     notes = ["absolute scale: from the body model's size (shape prior) alone; the shape's covariance carries it"]
-    used = [c for c in range(rig.num_cameras) if placed[c]]
+    used = [c for c in range(model.num_cameras) if placed[c]]
     if len(used) == 1:
         notes.append("a single camera: depth along its rays rests on the body's size and the priors; expect large covariances along them")
-    if all(rig.moving[c] for c in used):
+    if all(model.cameras[c].moving for c in used):
         notes.append("no static camera: the split between the person's motion and the cameras' rests on the motion prior and smoothness")
     return notes
 
 
 def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, capture_label: str = "") -> Result:
     """Run the pipeline on a loaded capture and return the result (nothing written)."""
-    from mocapgraph.pipelines.executors import make_executor
-
     options = options or SmartmocapOptions()
     options.check()
     t_start = time.perf_counter()
@@ -313,56 +283,50 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     seen = [bool(cam.detectors) and any(np.isfinite(d.keypoints[..., 2]).any() for d in cam.detectors.values()) for cam in capture.cameras]
     if not any(seen):
         raise MocapgraphError(f"capture {capture.name!r}: no camera has detections")
-    rig = rig_from_capture(capture, options.detectors, reference=_reference_camera(capture, seen))
-    say = lambda m: log("smartmocap", options.progress, m)  # noqa: E731
-    start, placed, used = initial_estimate(capture, rig, body, options, notes)
-    for c, name in enumerate(rig.names):
+    reference = _reference_camera(capture, seen)
+    model = capture_state_model(capture, "closest", detectors=options.detectors, reference=reference)
+    start, placed, used = initial_estimate(model, body, options, reference, notes)
+    for c, name in enumerate(model.names):
         if not placed[c]:
-            notes.append(f"camera {name}: never saw the person together with the reference camera {rig.names[rig.reference]}; not estimated")
-    rig = rig.only(placed)
-    notes += _degeneracy_notes(rig, placed)
+            notes.append(f"camera {name}: never saw the person together with the reference camera {model.names[reference]}; not estimated")
+    model = model.only(placed)
+    notes += _degeneracy_notes(model, placed)
     for note in notes:
-        say(note)
-    n = len(rig.states)
+        log.info("smartmocap: %s", note)
+    n = model.num_states
     bounds = chunk_bounds(n, options.chunk_size)
-    say(f"{n} body states, {len(bounds)} chunks of <= {options.chunk_size}, executor {options.executor} ({options.workers} workers)")
-    tasks = [ChunkTask(rig.subset(a, b), start.subset(a, b), options) for a, b in bounds]
+    log.info("smartmocap: %d body states, %d chunks of <= %d, executor %s (%d workers)", n, len(bounds), options.chunk_size, options.executor, options.workers)
+    tasks = [ChunkTask(model.span(a, b), start.span(a, b), options) for a, b in bounds]
     with make_executor(options.executor, options.workers, options.address) as executor:
-        solved = executor.map(solve_chunk, tasks, progress="smartmocap chunks" if options.progress else None)
+        solved = executor.map(solve_chunk, tasks, progress="smartmocap chunks")
     chunk_seconds = [s for _, s in solved]
-    stitched = stitch(body, rig, [(a, b, est) for (a, b), (est, _) in zip(bounds, solved)])
-    say(f"chunks: {np.median(chunk_seconds):.2f} s median; stitched; final optimisation")
+    stitched = stitch(body, model, [(a, b, est) for (a, b), (est, _) in zip(bounds, solved)])
+    log.info("smartmocap: chunks %.2f s median; stitched; final optimisation", np.median(chunk_seconds))
 
-    rg = RigGraph(rig, body, options.graph)
-    graph, values, windows = sequence_graph(rg, stitched, _motion_vae(options), options.gauge_sigmas)
-    on_iteration = (lambda row: say(f"final {row.get('stage')} iteration {row.get('iteration')}: cost {row.get('cost_after', row.get('cost', 0.0)):.4g}")) if options.progress else None
+    bg = BodyGraph(model, body, options.graph, learned=LearnedPriors.load(options.graph.pose_prior, options.motion_prior))
+    graph, values = sequence_graph(bg, stitched, options.gauge_sigmas)
     solved_final = solve_staged(
-        hold(graph, values, held_shape(options.graph)), values, rg.stages(options.final_iterations, time_ordering(rg, values, windows)), project=rg.project_shape, on_iteration=on_iteration
+        held(graph, values, bg.held_keys()), values, bg.stages(options.final_iterations, bg.time_ordering(values)), progress="smartmocap final",
+        project=bg.project_shape,
     )  # fmt: skip
-    estimate = rg.read(solved_final.values, stitched)
+    estimate = bg.read(solved_final.values, stitched)
+    estimate.log = list(solved_final.log)
     seconds = time.perf_counter() - t_start
-    result = rig_result("smartmocap", capture, rig, body, estimate, "ground_plane", options_parameters(options), capture_label, placed)
-    result.log = list(solved_final.log)
+    placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
+    result = estimate_result("smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(options), capture_label, cameras=placed_cameras)
     if options.covariances:
-        add_covariances(result, rg, graph, solved_final.values, estimate)
+        result.covariances.update(bg.covariances(graph, solved_final.values, estimate))
     result.parameters.update(
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes
     )
     return result
 
 
-def run_smartmocap_command(capture_path: Path, out: Path, options: SmartmocapOptions, overwrite: bool = False) -> Result:
-    """``mocapgraph run smartmocap``: load, run, write, and print a short summary."""
-    capture = load_capture(capture_path)
-    result = run_smartmocap(capture, options, capture_label=str(capture_path))
-    write_result(result, out, overwrite=overwrite)
+def summary(result: Result) -> str:
+    """What ``run smartmocap`` prints: a line and the notes."""
     p = result.parameters
-    print(
+    lines = [
         f"smartmocap: {len(result.timestamps)} body states, {len(result.cameras)} cameras, {p['chunks']} chunks "
         f"({p['seconds_per_chunk']:.2f} s each) in {p['seconds']:.1f} s; world: ground plane"
-    )
-    for note in p["notes"]:
-        print(f"  note: {note}")
-    return result
-
-
+    ]
+    return "\n".join(lines + [f"  note: {note}" for note in p["notes"]])

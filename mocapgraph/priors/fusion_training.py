@@ -37,7 +37,17 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import relative_angle, rotvec_to_matrix
 from mocapgraph.body.skeleton import PARENTS
 from mocapgraph.priors.fusion_regressor import (
-    ESTIMATE, POSE, ROOT, SHAPE, TRANSL, VARIANTS, FusionNet, FusionRegressor, ViewEstimate, crop_features, decode,
+    ESTIMATE,
+    POSE,
+    ROOT,
+    SHAPE,
+    TRANSL,
+    VARIANTS,
+    FusionNet,
+    FusionRegressor,
+    ViewEstimate,
+    crop_features,
+    decode,
     load_default_fusion_regressor,
 )  # fmt: skip
 from mocapgraph.priors.pose_vae import rotmat_to_sixd

@@ -89,8 +89,8 @@ import numpy as np
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.factors.reprojection import ShapeTableCache
 from mocapgraph.factors.keys import ground_key, motion_frame_key, motion_latent_key, pose_key, root_key
+from mocapgraph.factors.reprojection import ShapeTableCache
 from mocapgraph.priors.latent import BatchedDecoder, latent_prior_factor
 from mocapgraph.priors.motion_vae import JACOBIAN_CHUNK, MotionVAE
 from mocapgraph.priors.motion_windows import POSITION_CHANNELS, WINDOW, canonical_frame, motion_features, rot_z

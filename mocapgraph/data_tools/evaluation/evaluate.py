@@ -10,9 +10,9 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.data_tools.evaluation import metrics as M
 from mocapgraph.data_tools.evaluation.alignment import Similarity, procrustes_trajectory, umeyama
-from mocapgraph.data_tools.io.capture import Capture
-from mocapgraph.data_tools.io.result import CameraTrack, Result
 from mocapgraph.data_tools.geometry.timing import match_times
+from mocapgraph.data_tools.io.capture import Capture
+from mocapgraph.data_tools.io.result import PER_FRAME_CAMERA, CameraTrack, Result
 from mocapgraph.errors import MocapgraphError
 
 
@@ -52,9 +52,6 @@ def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_join
         return identity, "none possible (fewer than 3 estimated joints)"
     fit = umeyama(est_joints[usable], gt_joints[usable], with_scale=True)
     return fit, f"similarity (Umeyama with scale over all joints; scale {fit.scale:.3f})"
-
-
-PER_FRAME_CAMERA = "camera_per_frame:"
 
 
 def in_capture_frame(result: Result, capture: Capture) -> Result:

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.evaluation.evaluate import Evaluation, aligned
+from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import Result
 
 

@@ -27,8 +27,8 @@ from mocapgraph.data_tools.io.files import (
     check_array,
     check_increasing,
     check_rotations,
-    require_key,
     read_manifest,
+    require_key,
     write_directory_atomically,
     write_manifest,
 )

@@ -155,6 +155,13 @@ def write_manifest(path: Path, kind: str, doc_page: str, doc: dict) -> None:
     )
 
 
+def refuse_existing(path: Path, overwrite: bool, error: type[MocapgraphError] = MocapgraphError) -> None:
+    """Raise ``error`` when ``path`` exists and may not be replaced: callers check before a long
+    run, so a user learns it before waiting for the run, not after."""
+    if path.exists() and not overwrite:
+        raise error(f"{path}: already exists (pass overwrite=True / --overwrite to replace it)")
+
+
 def write_directory_atomically(
     path: Path,
     overwrite: bool,
@@ -166,8 +173,7 @@ def write_directory_atomically(
 
     On any failure the temporary directory is removed and whatever was at ``path`` stays.
     """
-    if path.exists() and not overwrite:
-        raise error(f"{path}: already exists (pass overwrite=True / --overwrite to replace it)")
+    refuse_existing(path, overwrite, error)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
     umask = os.umask(0)

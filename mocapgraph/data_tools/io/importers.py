@@ -15,10 +15,10 @@ that names the file (and the field, where there is one).
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import shutil
-import sys
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -40,6 +40,8 @@ from mocapgraph.data_tools.io.capture import (
 )
 from mocapgraph.data_tools.io.files import write_directory_atomically
 from mocapgraph.errors import MocapgraphError
+
+log = logging.getLogger(__name__)
 
 OPENPOSE_SUFFIX = "_keypoints.json"
 DEFAULT_FOCAL_FACTOR = 1.2
@@ -548,13 +550,9 @@ def assemble_capture(
         unused = [n for n in calib if n not in names]
         uncalibrated = [n for n in names if n not in calib]
         if unused:
-            print(f"mocapgraph: note: calibrated camera(s) {unused} have no video or keypoints; skipped", file=sys.stderr)
+            log.warning("note: calibrated camera(s) %s have no video or keypoints; skipped", unused)
         if uncalibrated:
-            print(
-                f"mocapgraph: note: camera(s) {uncalibrated} are not in the calibration (it has {list(calib)}); "
-                "their intrinsics are guessed",
-                file=sys.stderr,
-            )
+            log.warning("note: camera(s) %s are not in the calibration (it has %s); their intrinsics are guessed", uncalibrated, list(calib))
     unknown_moving = [n for n in moving if n not in names]
     if unknown_moving:
         raise CaptureError(f"moving/static given for unknown camera(s) {unknown_moving} (cameras: {', '.join(names)})")
@@ -605,11 +603,7 @@ def assemble_capture(
         if detectors:
             det_frames = len(next(iter(detectors.values())).keypoints)
             if frames is not None and det_frames != frames:
-                print(
-                    f"mocapgraph: warning: camera {cam_name}: {det_frames} frames of detections, "
-                    f"the video says {frames}; timestamps follow the detections",
-                    file=sys.stderr,
-                )
+                log.warning("camera %s: %d frames of detections, the video says %d; timestamps follow the detections", cam_name, det_frames, frames)
             frames = det_frames
         if frames is None:
             raise CaptureError(f"camera {cam_name}: frame count unknown: give its video or its keypoints")

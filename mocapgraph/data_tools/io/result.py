@@ -26,8 +26,8 @@ from mocapgraph.data_tools.io.files import (
     check_array,
     check_increasing,
     check_rotations,
-    require_key,
     read_manifest,
+    require_key,
     write_directory_atomically,
     write_manifest,
 )
@@ -36,6 +36,8 @@ from mocapgraph.errors import MocapgraphError
 FORMAT_NAME = "mocapgraph-result"
 FORMAT_VERSION = 1
 MANIFEST = "result.toml"
+PER_FRAME_CAMERA = "camera_per_frame:"
+"""Prefix of the world frame of a result relative to a camera at each body timestamp (AirPose's)."""
 
 
 class ResultError(MocapgraphError):
@@ -104,9 +106,13 @@ class Result:
 
 
 def options_parameters(options) -> dict:
-    """A pipeline's options dataclass as the result's ``parameters``: tuples as lists (TOML has
-    no tuples), unset (None) options left out."""
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items() if v is not None}
+    """A pipeline's options dataclass as the result's ``parameters``: nested options as tables,
+    tuples as lists (TOML has no tuples), unset (None) options left out."""
+
+    def plain(table: dict) -> dict:
+        return {k: plain(v) if isinstance(v, dict) else list(v) if isinstance(v, tuple) else v for k, v in table.items() if v is not None}
+
+    return plain(asdict(options))
 
 
 def load_result(path: str | Path) -> Result:

@@ -68,7 +68,6 @@ from mocapgraph.data_tools.geometry.camera_model import MIN_DEPTH_M, in_frame_ma
 from mocapgraph.data_tools.io.capture import Detector
 from mocapgraph.errors import MocapgraphError
 
-
 CAPSULE_RADII_M: dict[str, float] = {
     # bone parent → child, named by the child joint
     "left_hip": 0.10, "right_hip": 0.10,                      # pelvis to hip joints

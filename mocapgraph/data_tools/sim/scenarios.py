@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocapgraph.data_tools.geometry.camera_model import in_frame_mask
 from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.data_tools.geometry.camera_model import in_frame_mask
 from mocapgraph.data_tools.sim.sensors import (
     GRAVITY_M_S2,
     VehicleSensors,

@@ -12,8 +12,6 @@ loop can be tested (and another detector plugged in) without MediaPipe.
 
 from __future__ import annotations
 
-import sys
-import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -22,6 +20,7 @@ import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.progress import progress_bar
 
 INSTALL_HINT = "install the video extra: pip install 'mocapgraph[video]'"
 FORMAT = "blazepose33"
@@ -105,38 +104,10 @@ def _box(kp: np.ndarray, size: tuple[int, int], min_visibility: float = 0.5) -> 
     return np.array([x0, y0, x1, y1, kp[use, 2].mean()])
 
 
-class _Progress:
-    """Progress on stderr: ``name: 120/300 frames (40%), 24.1 frames/s``. On a terminal one line is
-    rewritten a few times a second; in a log (not a terminal) a line is added every 10 seconds."""
-
-    def __init__(self, label: str, total: int, enabled: bool, stream=None):
-        self.label, self.total, self.enabled = label, total, enabled
-        self.stream = stream or sys.stderr
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.every = 0.25 if self.tty else 10.0
-        self.start = self.last = time.monotonic()
-
-    def update(self, done: int, final: bool = False) -> None:
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        if not final and now - self.last < self.every:
-            return
-        self.last = now
-        rate = done / max(now - self.start, 1e-9)
-        if self.total > 0 and not final:
-            text = f"{self.label}: {done}/{self.total} frames ({100.0 * done / self.total:.0f}%), {rate:.1f} frames/s"
-        else:
-            text = f"{self.label}: {done} frames, {rate:.1f} frames/s"
-        self.stream.write(("\r" + text + ("\n" if final else "")) if self.tty else text + "\n")
-        self.stream.flush()
-
-
 def detect_video(
     video_path: str | Path,
     model_complexity: int = 1,
     min_confidence: float = 0.5,
-    progress: bool = True,
     *,
     estimator: Estimator | None = None,
     max_frames: int | None = None,
@@ -147,7 +118,6 @@ def detect_video(
         video_path: any file ``cv2.VideoCapture`` decodes.
         model_complexity: MediaPipe landmark model; only 1 (full) ships with mediapipe 0.10.14.
         min_confidence: MediaPipe's detection and tracking thresholds.
-        progress: print a progress line on stderr.
         estimator: use this instead of MediaPipe (see :data:`Estimator`); for tests and other detectors.
         max_frames: stop after this many frames.
 
@@ -166,6 +136,7 @@ def detect_video(
     if estimator is None:
         owned = estimator = MediaPipePose(model_complexity, min_confidence)
     cap = cv2.VideoCapture(str(path))
+    bar = progress_bar(desc=path.name, unit="frame")
     try:
         if not cap.isOpened():
             raise MocapgraphError(f"{path}: OpenCV cannot open this video")
@@ -174,7 +145,7 @@ def detect_video(
         total = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
         if max_frames is not None:
             total = min(total, max_frames) if total > 0 else max_frames
-        bar = _Progress(path.name, total, progress)
+        bar.reset(total=total or None)
         rows, boxes, size = [], [], None
         while max_frames is None or len(rows) < max_frames:
             ok, bgr = cap.read()
@@ -199,11 +170,11 @@ def detect_video(
                     raise MocapgraphError(f"estimator returned shape {kp.shape}, expected ({NUM_LANDMARKS}, 3)")
                 rows.append(kp)
                 boxes.append(_box(kp, size))
-            bar.update(len(rows))
+            bar.update()
         if not rows:
             raise MocapgraphError(f"{path}: no frame could be decoded")
-        bar.update(len(rows), final=True)
     finally:
+        bar.close()
         cap.release()
         if owned is not None:
             owned.close()

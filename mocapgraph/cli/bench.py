@@ -1,0 +1,68 @@
+"""``mocapgraph bench NAME``: speed and accuracy benchmarks, each printing one JSON object.
+
+Every benchmark is a function of :mod:`mocapgraph.benchmarks` whose keyword defaults are the
+flags' defaults (read from its signature, written once).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+from pathlib import Path
+
+from mocapgraph.cli.common import add_body_args, body_from, command, function_flags, group
+
+BENCHES = {
+    # name: (help, function, {parameter: (flag help, extra add_argument keywords)})
+    "aircap": ("the AirCap variants on a synthetic capture", "mocapgraph.benchmarks.aircap:bench_aircap", {}),
+    "smartmocap": (
+        "SmartMocap on a rich capture: camera configurations, with and without the motion prior",
+        "mocapgraph.benchmarks.smartmocap:bench_smartmocap", {"workers": ("parallel chunks", {})},
+    ),
+    "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
+    "priors": (
+        "the shipped learned priors on held-out CMU subjects and on aircap",
+        "mocapgraph.benchmarks.priors:bench_priors",
+        {
+            "motion_dir": ("CMU motion directory (default ../shared/motion/cmu_train)", {"type": Path, "metavar": "DIR", "flag": "--motion"}),
+            "noise_scale": ("keypoint noise multiplier of the aircap capture", {}),
+        },
+    ),
+}
+COMMON = {"duration_s": ("seconds of capture", {"flag": "--duration"}), "seed": ("scenario seed", {})}
+
+
+def _function(target: str):
+    module, name = target.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def cmd_bench(args) -> None:
+    fn = _function(BENCHES[args.bench_command][1])
+    print(json.dumps(fn(**{name: getattr(args, name) for name in args.bench_parameters})))
+
+
+def cmd_bench_body(args) -> None:
+    from mocapgraph.benchmarks.body import bench_body
+
+    result = bench_body(body_from(args), frames=args.frames, min_seconds=args.seconds)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for key, value in result.items():
+            print(f"{key:22s} {value}")
+
+
+def add_parsers(subparsers) -> None:
+    bench = group(subparsers, "bench", "speed and accuracy benchmarks", "bench_command")
+    body = command(bench, "body", "native vs numpy posing with Jacobians, one run")
+    add_body_args(body)
+    body.add_argument("--frames", type=int, default=256, help="frames per batch (default 256)")
+    body.add_argument("--seconds", type=float, default=1.0, help="time spent per variant (default 1)")
+    body.add_argument("--json", action="store_true", help="print one JSON object")
+    body.set_defaults(func=cmd_bench_body)
+    for name, (help, target, extra) in BENCHES.items():
+        parser = command(bench, name, f"{help}; one run, one JSON object")
+        names = function_flags(parser, _function(target), {**COMMON, **extra})
+        parser.add_argument("--json", action="store_true", help="accepted for symmetry with bench body: the output is always JSON")
+        parser.set_defaults(func=cmd_bench, bench_parameters=names)

@@ -1,0 +1,103 @@
+"""``mocapgraph run PIPELINE CAPTURE --out RESULT``: one pipeline on one capture.
+
+Each pipeline's flags are fields of its options dataclass (defaults read from it); the run goes
+through :func:`~mocapgraph.pipelines.runner.run_capture` (load, run, write).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mocapgraph.cli.common import OptionFlags, command, detector_list, group, out_args
+
+
+def _capture_args(parser) -> None:
+    parser.add_argument("capture", type=Path, help="capture directory")
+    out_args(parser)
+
+
+def cmd_run(args) -> None:
+    from mocapgraph.pipelines.runner import run_capture, summary
+
+    result = run_capture(args.pipeline, args.capture, args.out, args.options_from(args), overwrite=args.overwrite)
+    print(summary(args.pipeline, result))
+    print(f"wrote {args.out}")
+
+
+def _graph_flags(flags: OptionFlags, pose_priors: tuple[str, ...]) -> None:
+    flags.add("graph.pose_prior", "learned pose prior on every state (docs/priors.md)", choices=pose_priors)
+    flags.add("graph.gm_sigma_px", "Geman-McClure scale in pixels")
+
+
+def _uncalibrated_flags(flags: OptionFlags) -> None:
+    from mocapgraph.graphs.body_graph import SHAPE_MODES
+    from mocapgraph.graphs.initialisation import INITIALISERS
+
+    flags.add(
+        "initialiser", "body relative to each camera: PnP of the mean body, or the fusion regressor (PnP for a view where they disagree)",
+        choices=INITIALISERS,
+    )  # fmt: skip
+    flags.add("graph.shape", "hold the initial body shape during the solve (the body's size is the only scale) or estimate it", choices=SHAPE_MODES)
+    _graph_flags(flags, ("gmm", "none"))
+
+
+def add_parsers(subparsers) -> None:
+    from mocapgraph.graphs.body_graph import POSE_PRIORS
+    from mocapgraph.graphs.sync import SYNC_POLICIES
+    from mocapgraph.pipelines.aircap import CAMERA_MODES, MODES, AircapOptions
+    from mocapgraph.pipelines.airpose import AirposeOptions
+    from mocapgraph.pipelines.baseline import BaselineOptions
+    from mocapgraph.pipelines.executors import EXECUTORS
+    from mocapgraph.pipelines.smartmocap import MOTION_PRIORS, SmartmocapOptions
+
+    run = group(subparsers, "run", "run a pipeline on a capture", "pipeline")
+
+    baseline = command(run, "baseline", "calibrated-camera triangulation (DLT + RANSAC), the reference")
+    _capture_args(baseline)
+    flags = OptionFlags(baseline, BaselineOptions())
+    flags.add("detector", "detector name", unset="the first one every camera has")
+    flags.add("threshold_px", "RANSAC inlier threshold in pixels")
+    flags.add("seed", "seed of RANSAC's pair sampling")
+
+    aircap = command(run, "aircap", "UAV cameras with GPS/IMU: body and cameras from keypoints (AirCap)")
+    _capture_args(aircap)
+    flags = OptionFlags(aircap, AircapOptions())
+    flags.add("mode", "joint sequence fit or per frame", choices=MODES)
+    flags.add(
+        "cameras", "refine: jointly, near the offline GPS/IMU fusion; prior: held at that fusion; fixed: held at the onboard online estimate",
+        choices=CAMERA_MODES,
+    )  # fmt: skip
+    flags.add(
+        "sync", "grid: states on a regular grid, each frame interpolated at its own time (the sequence's default); "
+        "states: a state per frame time; closest: the thesis' closest-frame pairing (the per-frame default)", choices=SYNC_POLICIES,
+        unset="per mode",
+    )  # fmt: skip
+    flags.add("grid_hz", "body states per second with --sync grid")
+    flags.add("workers", "processes for the per-frame pass")
+    flags.add("motion_prior", "SmartMocap's motion prior on 25-state windows of the sequence fit (docs/priors.md)", choices=("none", "vae"))
+    flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
+    flags.add("covariances", "skip the marginal covariances")
+    _graph_flags(flags, POSE_PRIORS)
+
+    airpose = command(run, "airpose", "uncalibrated moving cameras: body and cameras relative to camera 1 (AirPose+)")
+    _capture_args(airpose)
+    flags = OptionFlags(airpose, AirposeOptions())
+    _uncalibrated_flags(flags)
+    flags.add("refine", "AirPose: the initialiser's estimate, no bundle adjustment", flag="--initialiser-only")
+    flags.add("min_confidence", "summed keypoint confidence a frame needs")
+    flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
+    flags.add("covariances", "skip the marginal covariances")
+
+    smartmocap = command(run, "smartmocap", "static and moving uncalibrated cameras in the ground plane's frame (SmartMocap)")
+    _capture_args(smartmocap)
+    flags = OptionFlags(smartmocap, SmartmocapOptions())
+    _uncalibrated_flags(flags)
+    flags.add("motion_prior", "SmartMocap's motion prior", choices=MOTION_PRIORS)
+    flags.add("executor", "where chunks run: local processes or Ray", choices=EXECUTORS)
+    flags.add("address", "Ray cluster address", unset="start a local Ray instance")
+    flags.add("workers", "parallel chunks")
+    flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
+    flags.add("covariances", "skip the marginal covariances")
+
+    for parser in (baseline, aircap, airpose, smartmocap):
+        parser.set_defaults(func=cmd_run)

@@ -1,0 +1,391 @@
+"""The factors of a :class:`~mocapgraph.graphs.state_model.StateModel`: every pipeline's graph.
+
+:class:`BodyGraph` adds, per body state, the reprojection of its observations (one factor per
+keypoint format and interpolation fraction, all its cameras at once so that forward kinematics
+is shared) and the pose priors; between states, the temporal smoothness of root, joint rotations
+and (optionally) 3D joints; per moving camera, the smoothness of its consecutive frames; and on
+request the shape prior, the ground terms, the pose VAE and the motion prior. It inserts initial
+values from an :class:`~mocapgraph.graphs.state_model.Estimate`, reads one back, orders the
+elimination along time, and computes the covariances a result reports.
+
+A camera is **estimated** when it has observations in the model and is not held fixed
+(``fixed_cameras``: per camera ``(F_c, 4, 4)`` poses used as constants, e.g. AirPose's camera 1,
+or AirCap's cameras held at their GPS/IMU track).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from mocapgraph.body.model import BodyModel
+from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
+from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
+from mocapgraph.factors.keys import motion_frame_key, motion_latent_key, pose_key, pose_latent_key, root_key, shape_key
+from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
+from mocapgraph.factors.robust import RobustScale
+from mocapgraph.factors.smoothness import (
+    camera_smoothness_factor,
+    joint_smoothness_factor,
+    pose_smoothness_factor,
+    pose_velocity_factor,
+    root_smoothness_factor,
+)
+from mocapgraph.graphs.solver import annealed_stages
+from mocapgraph.graphs.state_model import Estimate, StateModel
+from mocapgraph.graphs.uncertainty import joint_covariances
+from mocapgraph.priors.motion_windows import WINDOW
+
+POSE_PRIORS = ("none", "gmm", "vae")
+SHAPE_MODES = ("hold", "estimate")
+POSE_SMOOTHNESS = ("velocity", "acceleration")
+
+
+@dataclass
+class GraphOptions:
+    """Weights of the terms, as factors (units in the names). Each pipeline's options carry one,
+    with its own defaults (measured on its scenes)."""
+
+    noise_px: float = 3.0
+    gm_sigma_px: float = 40.0
+    pose_prior_sigma_rad: float = 0.8  # the weak regulariser every state keeps, on all 21 joints
+    # The learned pose prior: the pelvis's pitch is nearly invisible in keypoints (the hip points
+    # lie on its pitch axis), and without a prior the spine and legs make up for it. "vae" runs
+    # its network once per linearisation for all states.
+    pose_prior: str = "gmm"
+    shape_prior_sigma: float = 0.1
+    # "hold" keeps the initial shape during the solve (held by a stiff prior, so the covariances
+    # are still those of the graph with the shape free under its prior): without calibration the
+    # body's size is the only scale, and every smoothness term is cheaper in a smaller scene.
+    shape: str = "hold"
+    root_sigma_rad_s: float = 4.0
+    root_sigma_m_s: float = 3.0
+    # Joint-rotation smoothness: "velocity" (pairs of states) keeps the linear solve's cliques at
+    # two states; "acceleration" (triples) is smoother but about 4x slower.
+    pose_smoothness: str = "velocity"
+    pose_sigma_rad_s: float = 6.0
+    pose_sigma_rad_s2: float = 60.0
+    joint_sigma_m_s: float | None = 2.0  # SmartMocap's 3D joint smoothness; None: not used
+    camera_sigma_rad_s: float = 1.0
+    camera_sigma_m_s: float = 2.0
+    ground_sigma_m: float = 0.02
+    camera_clearance_m: float = 0.3
+
+    def check(self) -> None:
+        for name, value, choices in (
+            ("pose_prior", self.pose_prior, POSE_PRIORS),
+            ("shape", self.shape, SHAPE_MODES),
+            ("pose_smoothness", self.pose_smoothness, POSE_SMOOTHNESS),
+        ):
+            if value not in choices:
+                raise MocapgraphError(f"{name} {value!r}: choose one of {', '.join(choices)}")
+        for name in ("noise_px", "gm_sigma_px", "pose_prior_sigma_rad", "shape_prior_sigma", "root_sigma_rad_s", "root_sigma_m_s",
+                     "pose_sigma_rad_s", "pose_sigma_rad_s2", "camera_sigma_rad_s", "camera_sigma_m_s", "ground_sigma_m"):  # fmt: skip
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
+        if self.joint_sigma_m_s is not None and not (np.isfinite(self.joint_sigma_m_s) and self.joint_sigma_m_s > 0):
+            raise MocapgraphError(f"joint_sigma_m_s: a finite number > 0 or None, got {self.joint_sigma_m_s!r}")
+
+
+@dataclass
+class LearnedPriors:
+    """The shipped learned priors a run asks for (None where not), loaded once per run."""
+
+    pose_gmm: object | None = None
+    pose_vae: object | None = None
+    motion_vae: object | None = None
+
+    @classmethod
+    def load(cls, pose_prior: str = "none", motion_prior: str = "none") -> LearnedPriors:
+        from mocapgraph.priors import load_default_pose_gmm
+        from mocapgraph.priors.motion_vae import load_default_motion_vae
+        from mocapgraph.priors.pose_vae import load_default_pose_vae
+
+        return cls(
+            load_default_pose_gmm() if pose_prior == "gmm" else None,
+            load_default_pose_vae() if pose_prior == "vae" else None,
+            load_default_motion_vae() if motion_prior == "vae" else None,
+        )
+
+
+def motion_windows(n: int, stride: int = WINDOW) -> list[int]:
+    """First states of the motion prior's windows over ``n`` states: every ``stride``, plus one
+    ending at the last state when the stride leaves a tail (none when ``n`` < 25)."""
+    starts = list(range(0, n - WINDOW + 1, stride))
+    if starts and starts[-1] + WINDOW < n:
+        starts.append(n - WINDOW)
+    return starts
+
+
+class BodyGraph:
+    """Builds the factors of ``model`` over its states (indices ``0..N-1``).
+
+    Args:
+        model: the state model.
+        body: the body model.
+        options: the terms' weights.
+        learned: the learned priors (default: the pose prior ``options`` asks for, loaded now).
+        fixed_cameras: per camera, ``(F_c, 4, 4)`` constant world_T_camera (no variable).
+        fixed_shape: ``(S,)`` a constant shape (no shape variable), e.g. a per-frame fit's.
+    """
+
+    def __init__(
+        self, model: StateModel, body: BodyModel, options: GraphOptions, *, learned: LearnedPriors | None = None,
+        fixed_cameras: dict[int, np.ndarray] | None = None, fixed_shape=None,
+    ):  # fmt: skip
+        options.check()
+        self.model, self.body, self.options = model, body, options
+        self.learned = learned if learned is not None else LearnedPriors.load(options.pose_prior)
+        self.fixed_cameras = dict(fixed_cameras or {})
+        self.fixed_shape = None if fixed_shape is None else body.check_shape(fixed_shape)
+        self.scale = RobustScale(np.inf)
+        self.caches: dict[str, ShapeTableCache] = {}
+        self.estimated = [c for c in model.observed_cameras() if c not in self.fixed_cameras]
+        self.windows: list[int] = []
+
+    # -- variables ------------------------------------------------------------------------------
+
+    @property
+    def shape_key(self) -> int | None:
+        return None if self.fixed_shape is not None else shape_key()
+
+    def cache(self, fmt: str) -> ShapeTableCache:
+        if fmt not in self.caches:
+            self.caches[fmt] = ShapeTableCache(self.body, fmt)
+        return self.caches[fmt]
+
+    def camera_vars(self, states: range | None = None) -> dict[int, tuple[int, int]]:
+        """Every estimated camera's pose key over ``states`` (default all) → (camera, its first frame)."""
+        out: dict[int, tuple[int, int]] = {}
+        for c in self.estimated:
+            for j in self.model.camera_frames(c, states):
+                out.setdefault(self.model.camera_var(c, j), (c, int(j)))
+        return out
+
+    def held_keys(self) -> list[int]:
+        """Keys the options hold during a solve (the shape, with ``shape="hold"``)."""
+        return [shape_key()] if self.options.shape == "hold" and self.shape_key is not None else []
+
+    def values(self, estimate: Estimate, states: range | None = None) -> gtsam.Values:
+        """Body states (of ``states``, default all), shape and estimated cameras at ``estimate``."""
+        values = gtsam.Values()
+        for i in range(self.model.num_states) if states is None else states:
+            values.insert(root_key(i), gtsam.Pose3(estimate.roots[i]))
+            values.insert(pose_key(i), estimate.poses[i].ravel())
+        if self.shape_key is not None:
+            lo, hi = self.body.shape_bounds.T
+            values.insert(shape_key(), np.clip(estimate.shape, lo + 1e-9, hi - 1e-9))
+        for key, (c, j) in self.camera_vars(states).items():
+            values.insert(key, gtsam.Pose3(estimate.cameras[c][j]))
+        return values
+
+    def read(self, values: gtsam.Values, start: Estimate, states: range | None = None) -> Estimate:
+        """The estimate in ``values`` over ``states`` (default all); everything else from ``start``."""
+        out = Estimate(start.roots.copy(), start.poses.copy(), start.shape.copy(), [c.copy() for c in start.cameras], list(start.log))
+        self.update(out, values, states)
+        return out
+
+    def update(self, estimate: Estimate, values: gtsam.Values, states: range | None = None) -> None:
+        """Write the body states ``states`` (default all), the shape and those states' estimated
+        camera frames from ``values`` into ``estimate``, in place."""
+        for i in range(self.model.num_states) if states is None else states:
+            estimate.roots[i] = values.atPose3(root_key(i)).matrix()
+            estimate.poses[i] = values.atVector(pose_key(i)).reshape(NUM_JOINTS - 1, 3)
+        if self.shape_key is not None:
+            estimate.shape = values.atVector(shape_key())
+        for c in self.estimated:
+            frames = self.model.camera_frames(c, states)
+            if len(frames) == 0:
+                continue
+            if self.model.cameras[c].moving:
+                estimate.cameras[c][frames] = [values.atPose3(self.model.camera_var(c, j)).matrix() for j in frames]
+            else:
+                estimate.cameras[c][:] = values.atPose3(self.model.camera_var(c, 0)).matrix()
+
+    # -- factors --------------------------------------------------------------------------------
+
+    def add_state(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
+        """State ``i``'s reprojection factors (one per keypoint format and fraction, all its
+        cameras) and pose priors."""
+        groups: dict[tuple[str, float], list] = {}
+        for o in self.model.states[i]:
+            groups.setdefault((o.fmt, o.fraction), []).append(o)
+        for (fmt, fraction), obs in groups.items():
+            keys, fixed = [], []
+            for o in obs:
+                held = self.fixed_cameras.get(o.camera)
+                keys.append(None if held is not None else self.model.camera_var(o.camera, o.frame))
+                fixed.append(held[o.frame] if held is not None else None)
+            between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": fraction} if fraction else {}
+            graph.add(
+                reprojection_factor(
+                    self.body, self.cache(fmt), root_key(i), pose_key(i), self.shape_key, keys, fixed,
+                    np.stack([self.model.cameras[o.camera].intrinsics for o in obs]), np.stack([o.observed for o in obs]),
+                    np.stack([o.weights for o in obs]), fmt, self.scale, noise_px=self.options.noise_px,
+                    fixed_shape=self.fixed_shape, **between,
+                )  # fmt: skip
+            )
+        self.add_pose_priors(graph, i)
+
+    def add_pose_priors(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
+        """The weak regulariser on every joint of state ``i`` and the pose GMM, if loaded (the
+        pose VAE covers all states at once: :meth:`add_pose_vae`)."""
+        graph.add(pose_regularizer_factor(pose_key(i), self.options.pose_prior_sigma_rad))
+        if self.learned.pose_gmm is not None:
+            from mocapgraph.priors import pose_gmm_factor
+
+            graph.add(pose_gmm_factor(pose_key(i), self.learned.pose_gmm))
+
+    def add_smoothness(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
+        """Between states ``i - 1`` and ``i``: root, joint-rotation (velocity, or acceleration
+        over ``i - 2 .. i``) and, with ``joint_sigma_m_s``, 3D joint smoothness."""
+        o, t = self.options, self.model.times
+        dt = max(float(t[i] - t[i - 1]), 1e-3)
+        graph.add(root_smoothness_factor(root_key(i - 1), root_key(i), dt, (o.root_sigma_rad_s, o.root_sigma_m_s)))
+        if o.pose_smoothness == "velocity":
+            graph.add(pose_velocity_factor(pose_key(i - 1), pose_key(i), dt, o.pose_sigma_rad_s))
+        elif i > 1:
+            graph.add(pose_smoothness_factor([pose_key(i - 2), pose_key(i - 1), pose_key(i)], t[i - 2 : i + 1], o.pose_sigma_rad_s2))
+        if o.joint_sigma_m_s is not None:
+            a, b = (root_key(i - 1), pose_key(i - 1)), (root_key(i), pose_key(i))
+            graph.add(joint_smoothness_factor(self.cache("body"), a, b, self.shape_key, dt, o.joint_sigma_m_s, fixed_shape=self.fixed_shape))
+
+    def add_camera_smoothness(self, graph: gtsam.NonlinearFactorGraph) -> None:
+        """Every estimated moving camera's consecutive frames in the model: constant-pose smoothness."""
+        o = self.options
+        for c in self.estimated:
+            cam = self.model.cameras[c]
+            if not cam.moving:
+                continue
+            frames = self.model.camera_frames(c)
+            for j0, j1 in zip(frames[:-1], frames[1:]):
+                dt = max(float(cam.timestamps[j1] - cam.timestamps[j0]), 1e-3)
+                graph.add(camera_smoothness_factor(self.model.camera_var(c, j0), self.model.camera_var(c, j1), dt, o.camera_sigma_rad_s, o.camera_sigma_m_s))
+
+    def add_ground(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
+        """E_HGP on state ``i``'s joints (the world's z = 0 plane)."""
+        graph.add(joint_ground_factor(self.cache("body"), root_key(i), pose_key(i), self.shape_key, self.options.ground_sigma_m, fixed_shape=self.fixed_shape))
+
+    def add_camera_ground(self, graph: gtsam.NonlinearFactorGraph) -> None:
+        """E_CGP on every camera variable: its centre above the ground by the clearance."""
+        for key in self.camera_vars():
+            graph.add(camera_ground_factor(key, sigma_m=0.05, clearance_m=self.options.camera_clearance_m))
+
+    def add_shape_prior(self, graph: gtsam.NonlinearFactorGraph) -> None:
+        if self.shape_key is not None:
+            graph.add(shape_prior_factor(shape_key(), self.body.default_shape, self.options.shape_prior_sigma))
+
+    def add_pose_vae(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, estimate: Estimate) -> None:
+        """The pose VAE's latent per state, if loaded."""
+        if self.learned.pose_vae is not None:
+            from mocapgraph.priors.pose_vae_factor import PoseVAEPrior
+
+            PoseVAEPrior(self.learned.pose_vae, range(self.model.num_states)).add_to(graph, values, estimate.pose_vectors)
+
+    def add_motion_prior(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, windows: list[int], ground_sigmas: tuple[float, float] | None = None
+    ) -> None:
+        """SmartMocap's motion prior on the 25-state windows starting at ``windows``, if loaded;
+        ``ground_sigmas`` ``(tilt_rad, height_m)`` of its ground plane at the world's z = 0
+        (default: the prior's)."""
+        if self.learned.motion_vae is None or not windows:
+            return
+        from mocapgraph.priors.motion_factor import MotionVAEPrior
+
+        extra = {} if ground_sigmas is None else {"ground_sigmas": ground_sigmas}
+        prior = MotionVAEPrior(
+            self.learned.motion_vae, self.body, windows, shape_key=self.shape_key, fixed_shape=self.fixed_shape,
+            table_cache=self.cache("body"), **extra,
+        )  # fmt: skip
+        prior.add_to(graph, values)
+        self.windows = list(windows)
+
+    def sequence(self, estimate: Estimate, *, ground: bool = False) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """Every state's factors, body and camera smoothness, the shape prior, the pose VAE and,
+        with ``ground``, the ground terms of body and cameras; the values at ``estimate``."""
+        graph = gtsam.NonlinearFactorGraph()
+        for i in range(self.model.num_states):
+            self.add_state(graph, i)
+            if ground:
+                self.add_ground(graph, i)
+            if i:
+                self.add_smoothness(graph, i)
+        self.add_shape_prior(graph)
+        self.add_camera_smoothness(graph)
+        if ground:
+            self.add_camera_ground(graph)
+        values = self.values(estimate)
+        self.add_pose_vae(graph, values, estimate)
+        return graph, values
+
+    # -- solving --------------------------------------------------------------------------------
+
+    def time_ordering(self, values: gtsam.Values) -> list[int]:
+        """Elimination order: body states and camera frames in time order (a camera frame before
+        the state at its time), then what all states share (shape, static cameras, offsets, ground).
+
+        The graph is a chain in time with a few variables shared by all; eliminating along the
+        chain keeps every clique to neighbouring states, where COLAMD's order grew faster than
+        the sequence (AirCap at 60 s: solves 27 % faster, measured). A pose latent goes before
+        its state: it touches that state alone, so eliminating it first adds no fill-in. A
+        motion window's latent and canonical frame touch all its 25 states: eliminated early,
+        either would join them in one dense clique, so both go after the window's last state.
+        """
+        n = self.model.num_states
+        deferred: dict[int, list[int]] = {}
+        for w, i0 in enumerate(self.windows):
+            deferred.setdefault(i0 + WINDOW - 1, []).extend([motion_frame_key(w), motion_latent_key(w)])
+        latent = self.learned.pose_vae is not None
+        timed = []
+        for i in range(n):
+            t = float(self.model.times[i])
+            timed.append((t, 1, ([pose_latent_key(i)] if latent else []) + [root_key(i), pose_key(i)]))
+            if i in deferred:
+                timed.append((t, 2, deferred[i]))
+        for key, (c, j) in self.camera_vars().items():
+            if self.model.cameras[c].moving:
+                timed.append((self.model.frame_time(c, j), 0, [key]))
+        timed.sort(key=lambda item: (item[0], item[1]))
+        order = [key for _, _, keys in timed for key in keys if values.exists(key)]
+        listed = set(order)
+        return order + sorted(k for k in values.keys() if k not in listed)
+
+    def stages(self, iterations: int, ordering: str | list[int] = "colamd") -> list:
+        """L2, then Geman-McClure at the options' scale (:func:`~mocapgraph.graphs.solver.annealed_stages`)."""
+        return annealed_stages(self.scale, self.options.gm_sigma_px, iterations, ordering)
+
+    def project_shape(self, values: gtsam.Values) -> gtsam.Values:
+        """Clamp the shape into the body model's bounds (the body table is undefined outside
+        them), returning the same ``Values`` when nothing moved."""
+        if self.shape_key is None:
+            return values
+        lo, hi = self.body.shape_bounds.T
+        shape = values.atVector(shape_key())
+        clamped = np.clip(shape, lo + 1e-9, hi - 1e-9)
+        if np.array_equal(clamped, shape):
+            return values
+        out = gtsam.Values(values)
+        out.update(shape_key(), clamped)
+        return out
+
+    def covariances(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, estimate: Estimate, cameras: bool = True) -> dict[str, np.ndarray]:
+        """Marginal covariances at the solution: ``joints (N, 22, 3, 3)`` m², ``root (N, 6, 6)``,
+        ``shape (S, S)`` and, with ``cameras``, ``camera:<name> (M, 6, 6)`` at each of the
+        camera's frames in the model (Pose3 tangents, rotation first)."""
+        marginals = gtsam.Marginals(graph.linearize(values), values)
+        out = {}
+        out["joints"], out["root"] = joint_covariances(self.body, marginals, estimate.roots, estimate.poses, estimate.shape)
+        if self.shape_key is not None:
+            out["shape"] = np.asarray(marginals.marginalCovariance(shape_key()))
+        for c in self.estimated if cameras else []:
+            cache: dict[int, np.ndarray] = {}
+            keys = [self.model.camera_var(c, j) for j in self.model.camera_frames(c)]
+            out[f"camera:{self.model.cameras[c].name}"] = np.stack(
+                [cache[k] if k in cache else cache.setdefault(k, marginals.marginalCovariance(k)) for k in keys]
+            )
+        return out
