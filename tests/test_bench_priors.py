@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from conftest import random_root
 
-from mocapgraph.benchmarks.priors import _held_out_takes, corrupt
+from mocapgraph.benchmarks.priors import corrupt, held_out_takes
 from mocapgraph.errors import MocapgraphError
 
 
@@ -44,7 +44,7 @@ def test_held_out_takes_are_only_the_held_out_subjects(tmp_path):
     source.mkdir()
     for name in ("cmu_02_01.npz", "cmu_03_07_s1.npz", "cmu_15_01.npz", "index.json"):
         (source / name).write_bytes(b"x")
-    held_out = _held_out_takes(source, [2, 15])
+    held_out = held_out_takes(source, [2, 15])
     assert [p.name for p in held_out] == ["cmu_02_01.npz", "cmu_15_01.npz"]
     with pytest.raises(MocapgraphError, match="nowhere: motion directory not found"):
-        _held_out_takes(tmp_path / "nowhere", [2])
+        held_out_takes(tmp_path / "nowhere", [2])

@@ -17,7 +17,7 @@ from mocapgraph.graphs.initialisation import (
     relative_cameras,
     robust_pose_mean,
 )
-from mocapgraph.priors.fusion_regressor import ViewEstimate
+from mocapgraph.priors.views import ViewEstimate
 
 
 @pytest.fixture(scope="module")

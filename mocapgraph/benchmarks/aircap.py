@@ -12,29 +12,16 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from scipy.stats import chi2
 
 from mocapgraph.body.skeleton import NUM_JOINTS
-from mocapgraph.data_tools.evaluation.evaluate import evaluate
-from mocapgraph.data_tools.geometry.timing import match_times
+from mocapgraph.data_tools.evaluation.evaluate import evaluate, matched_truth
+from mocapgraph.data_tools.evaluation.metrics import covariance_coverage
 from mocapgraph.data_tools.io.result import Result
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.pipelines.aircap import AircapOptions, camera_tracks, run_aircap
 from mocapgraph.pipelines.baseline import triangulate_capture
 
 REPORTED = ("mpjpe_m", "pa_mpjpe_m", "ra_mpjpe_m", "mpe_m", "moe_rad", "mcpe_m", "mcoe_rad")
-
-
-def coverage(result: Result, truth_joints: np.ndarray, states: np.ndarray | None = None, level: float = 0.95) -> float:
-    """Fraction of joints whose error lies inside the ``level`` ellipsoid of their covariance;
-    ``truth_joints (N, 22, 3)`` at the result's states selected by the boolean mask ``states``
-    (default: all)."""
-    keep = slice(None) if states is None else states
-    cov = result.covariances["joints"][keep]
-    err = result.joints[keep] - truth_joints
-    ok = np.isfinite(err).all(-1) & np.isfinite(cov).all((-1, -2))
-    d2 = np.einsum("...i,...ij,...j->...", err[ok], np.linalg.inv(cov[ok]), err[ok])
-    return float(np.mean(d2 <= chi2.ppf(level, 3)))
 
 
 def _metrics(result: Result, capture) -> dict:
@@ -48,9 +35,9 @@ def bench_aircap(duration_s: float = 60.0, seed: int = 0) -> dict:
     frames = sum(cam.num_frames for cam in capture.cameras)
     out: dict = {"duration_s": duration_s, "seed": seed, "camera_frames": frames}
     variants = {
-        "per_frame": AircapOptions(mode="per-frame", cameras="refine", covariances=False, progress=False),
-        "sequence": AircapOptions(mode="sequence", cameras="refine", covariances=False, progress=False),
-        "cameras_fixed_gps": AircapOptions(mode="sequence", cameras="prior", covariances=False, progress=False),
+        "per_frame": AircapOptions(mode="per-frame", cameras="refine", covariances=False),
+        "sequence": AircapOptions(mode="sequence", cameras="refine", covariances=False),
+        "cameras_fixed_gps": AircapOptions(mode="sequence", cameras="prior", covariances=False),
     }
     for name, options in variants.items():
         start = time.perf_counter()
@@ -63,16 +50,12 @@ def bench_aircap(duration_s: float = 60.0, seed: int = 0) -> dict:
             start = time.perf_counter()
             with_cov = run_aircap(capture, replace(options, covariances=True))
             out["covariance_seconds"] = round(time.perf_counter() - start - with_cov.parameters["seconds"], 1)
-            gt = capture.ground_truth
-            step = np.median(np.diff(gt.timestamps))
-            idx = match_times(gt.timestamps, with_cov.timestamps, tolerance=0.5 * step)  # as evaluate() matches
-            have = idx >= 0
-            out["coverage_95"] = round(coverage(with_cov, gt.joints[idx[have]], have), 3)
+            have, idx = matched_truth(with_cov, capture.ground_truth)
+            covered = covariance_coverage(with_cov.joints[have], capture.ground_truth.joints[idx], with_cov.covariances["joints"][have])
+            out["coverage_95"] = round(covered.value, 3)
 
     priors, _ = camera_tracks(capture, "prior")
-    calibrated = replace(
-        capture, cameras=[replace(cam, extrinsics=priors[cam.name][0]) for cam in capture.cameras if cam.name in priors]
-    )
+    calibrated = replace(capture, cameras=[replace(cam, extrinsics=priors[c][0]) for c, cam in enumerate(capture.cameras) if c in priors])
     start = time.perf_counter()
     tri = triangulate_capture(calibrated)
     seconds = time.perf_counter() - start

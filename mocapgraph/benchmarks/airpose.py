@@ -15,6 +15,8 @@ import time
 import numpy as np
 
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.evaluation.metrics import mcpe_m
+from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import Result
 from mocapgraph.data_tools.sim.synthetic import synthesize
@@ -35,8 +37,8 @@ def camera2_position_error_m(result: Result, capture: Capture) -> float:
     c1, c2 = capture.cameras[0].name, capture.cameras[1].name
     truth = np.linalg.inv(gt.cameras[c1]) @ gt.cameras[c2]
     track = result.cameras[c2]
-    idx = np.searchsorted(capture.camera(c2).timestamps, track.timestamps - 1e-9)
-    return float(np.mean(np.linalg.norm(track.world_T_camera[:, :3, 3] - truth[idx, :3, 3], axis=1)))
+    frames = match_times(capture.camera(c2).timestamps, track.timestamps, tolerance=0.0)
+    return mcpe_m(track.world_T_camera, truth[frames]).value
 
 
 def bench_airpose(duration_s: float = 10.0, seed: int = 0, motion: str | None = None) -> dict:
@@ -46,7 +48,7 @@ def bench_airpose(duration_s: float = 10.0, seed: int = 0, motion: str | None = 
     out: dict = {"preset": "airpose", "duration_s": duration_s, "seed": seed, "motion": motion or "default"}
     for name, (initialiser, variant) in INITIALISERS.items():
         for refine in (False, True):
-            options = AirposeOptions(initialiser=initialiser, regressor_variant=variant, refine=refine, covariances=False, progress=False)
+            options = AirposeOptions(initialiser=initialiser, regressor_variant=variant, refine=refine, covariances=False)
             start = time.perf_counter()
             try:
                 result = run_airpose(capture, options)

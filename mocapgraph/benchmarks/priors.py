@@ -28,14 +28,15 @@ from mocapgraph.errors import MocapgraphError
 
 HELD_OUT_TAKE = "cmu_15_01_s1.npz"  # "walk/wander", 41 s, subject 15 (held out by every shipped prior)
 VARIANTS = {
-    "none": {"motion_prior": "none"},
-    "pose_gmm": {"pose_prior": "gmm", "motion_prior": "none"},
-    "pose_vae": {"pose_prior": "vae", "motion_prior": "none"},
-    "motion_vae": {"motion_prior": "vae"},
+    # name: (the graph's pose prior, the motion prior)
+    "none": ("none", "none"),
+    "pose_gmm": ("gmm", "none"),
+    "pose_vae": ("vae", "none"),
+    "motion_vae": ("none", "vae"),
 }
 
 
-def _held_out_takes(motion_dir: Path, subjects: list[int]) -> list[Path]:
+def held_out_takes(motion_dir: Path, subjects: list[int]) -> list[Path]:
     """The takes of ``subjects`` in ``motion_dir``, in name order."""
     from mocapgraph.priors.training import take_files, take_subject
 
@@ -83,7 +84,7 @@ def _held_out_numbers(motion_dir: Path, out: dict) -> None:
     stride = pose_vae.info["stride"]
     rng = np.random.default_rng(0)
     frames, windows = [], {"real": [], "jitter": [], "skate": [], "flip": []}
-    for path in _held_out_takes(motion_dir, subjects):
+    for path in held_out_takes(motion_dir, subjects):
         root, pose = retarget(load_cmu_take(path), body)
         frames.append(pose[::stride].reshape(-1, 63))
         starts = window_starts(len(root), WINDOW)
@@ -117,8 +118,10 @@ def _aircap_rows(motion_dir: Path, duration_s: float, seed: int, noise_scale: fl
     take = motion_dir / HELD_OUT_TAKE
     capture = synthesize("aircap", seed=seed, duration_s=duration_s, motion=str(take), noise_scale=noise_scale)
     out["aircap"] = {"duration_s": duration_s, "seed": seed, "noise_scale": noise_scale, "motion": HELD_OUT_TAKE}
-    for name, fields in VARIANTS.items():
-        result = run_aircap(capture, AircapOptions(covariances=False, progress=False, **fields))
+    for name, (pose_prior, motion_prior) in VARIANTS.items():
+        options = AircapOptions(covariances=False, motion_prior=motion_prior)
+        options.graph.pose_prior = pose_prior
+        result = run_aircap(capture, options)
         metrics = evaluate(result, capture).metrics
         sequence_s = result.parameters["seconds"] - result.parameters["per_frame_seconds"]
         out["aircap"][name] = {

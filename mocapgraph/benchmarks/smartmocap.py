@@ -39,7 +39,7 @@ def bench_smartmocap(duration_s: float = 10.0, seed: int = 0, motion: str = BENC
         for name, cameras in CONFIGURATIONS.items():
             cap = capture if cameras is None else replace(capture, cameras=[c for c in capture.cameras if c.name in cameras])
             start = time.perf_counter()
-            result = run_smartmocap(cap, SmartmocapOptions(motion_prior=prior, workers=workers, covariances=False, progress=False))
+            result = run_smartmocap(cap, SmartmocapOptions(motion_prior=prior, workers=workers, covariances=False))
             seconds = time.perf_counter() - start
             metrics = evaluate(result, cap).metrics
             row = {k: round(metrics[k], 4) for k in REPORTED if k in metrics}

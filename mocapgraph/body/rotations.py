@@ -72,10 +72,21 @@ def relative_angle(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(0.5 * (trace - 1.0), -1.0, 1.0))
 
 
-def axis_rotation(axis: str, angle: float) -> np.ndarray:
-    """Rotation matrix ``(3, 3)`` of ``angle`` radians about the named coordinate axis."""
-    unit = {"x": [1.0, 0.0, 0.0], "y": [0.0, 1.0, 0.0], "z": [0.0, 0.0, 1.0]}[axis]
-    return rotvec_to_matrix(angle * np.asarray(unit))
+def axis_rotation(axis: str, angle) -> np.ndarray:
+    """``(..., 3, 3)`` rotations by ``angle (...)`` radians (a scalar gives ``(3, 3)``) about
+    the named coordinate axis ``"x"``, ``"y"`` or ``"z"``."""
+    unit = np.eye(3)["xyz".index(axis)]
+    return rotvec_to_matrix(np.asarray(angle, dtype=float)[..., None] * unit)
+
+
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """``(..., 3, 3)``: the proper rotation nearest to each ``M (..., 3, 3)`` in the Frobenius
+    norm (``U diag(1, 1, det(U Vᵀ)) Vᵀ`` of its SVD; a weighted sum of rotations gives their
+    chordal mean)."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=float))
+    U = U.copy()
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+    return U @ Vt
 
 
 def minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:

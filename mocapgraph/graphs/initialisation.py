@@ -25,11 +25,12 @@ import cv2
 import numpy as np
 
 from mocapgraph.body.model import BodyModel
+from mocapgraph.body.rotations import nearest_rotation
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.state_model import StateModel
-from mocapgraph.priors.fusion_regressor import ViewEstimate, ViewInput, coco_keypoints, load_default_fusion_regressor
+from mocapgraph.priors.views import ViewEstimate, ViewInput, coco_keypoints
 
 MIN_POINTS = 6
 """Confident keypoints a view needs at a frame to place the body (PnP needs at least 4; 6
@@ -93,9 +94,7 @@ def pnp_view(body: BodyModel, keypoints: np.ndarray, fmt: str, K: np.ndarray, sh
 def rotation_mean(R: np.ndarray, weights=None) -> np.ndarray:
     """``(3, 3)`` chordal L2 mean of rotations ``(N, 3, 3)`` (the projection of their weighted sum)."""
     w = np.ones(len(R)) if weights is None else np.asarray(weights, dtype=float)
-    U, _, Vt = np.linalg.svd(np.einsum("n,nij->ij", w, R))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
+    return nearest_rotation(np.einsum("n,nij->ij", w, R))
 
 
 def robust_pose_mean(poses: np.ndarray) -> np.ndarray:
@@ -346,6 +345,8 @@ def view_bodies(model: StateModel, body: BodyModel, initialiser: str, variant: s
     pnp = [empty if kp is None else pnp_view(body, kp[0], kp[1], K[c]) for c, kp in enumerate(kps)]
     if initialiser == "pnp":
         return pnp, "pnp"
+    from mocapgraph.priors.fusion_regressor import load_default_fusion_regressor  # torch: only when asked for
+
     try:
         regressor = load_default_fusion_regressor(variant)
     except MocapgraphError as exc:

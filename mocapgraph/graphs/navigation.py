@@ -40,7 +40,7 @@ import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from mocapgraph.body.rotations import rotvec_to_matrix, skew
+from mocapgraph.body.rotations import nearest_rotation, rotvec_to_matrix, skew
 from mocapgraph.errors import MocapgraphError, as_checked_array
 from mocapgraph.factors.keys import drift_key, nav_keys
 from mocapgraph.factors.navigation import (
@@ -126,13 +126,6 @@ def _nearest(sorted_times: np.ndarray, t: np.ndarray) -> np.ndarray:
 def _mount_adjoint(mount: np.ndarray) -> np.ndarray:
     """``Ad(mount⁻¹)``: maps a vehicle-pose tangent ξ to the camera's, ``T Exp(ξ) M = T M Exp(Ad ξ)``."""
     return gtsam.Pose3(np.linalg.inv(mount)).AdjointMap()
-
-
-def _project_rotation(M: np.ndarray) -> np.ndarray:
-    """The rotation nearest to ``M`` (Frobenius norm)."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
 
 
 # ---------------------------------------------------------------------------------------------
@@ -479,7 +472,7 @@ def _graph(imu: _Imu, idx: np.ndarray, initial, gps: dict, baro: dict, noise: Fu
     params = preintegration_params(noise)
     for n in range(len(idx)):
         x, v, b = nav_keys(n)
-        values.insert(x, gtsam.Pose3(gtsam.Rot3(_project_rotation(R_init[n])), p_init[n]))
+        values.insert(x, gtsam.Pose3(gtsam.Rot3(nearest_rotation(R_init[n])), p_init[n]))
         values.insert(v, v_init[n])
         values.insert(b, zero_bias)
         values.insert(drift_key(n), np.zeros(OFFSET_DIM))

@@ -30,6 +30,7 @@ import numpy as np
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
+from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
@@ -185,9 +186,8 @@ def _yaw_alignment(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     ``target (P, 3)`` in least squares (both chunks stand on the same ground, z = 0)."""
     s, t = source - source.mean(0), target - target.mean(0)
     angle = np.arctan2(np.sum(s[:, 0] * t[:, 1] - s[:, 1] * t[:, 0]), np.sum(s[:, 0] * t[:, 0] + s[:, 1] * t[:, 1]))
-    c, si = np.cos(angle), np.sin(angle)
     A = np.eye(4)
-    A[:3, :3] = [[c, -si, 0.0], [si, c, 0.0], [0.0, 0.0, 1.0]]
+    A[:3, :3] = axis_rotation("z", angle)
     A[:3, 3] = target.mean(0) - A[:3, :3] @ source.mean(0)
     return A
 

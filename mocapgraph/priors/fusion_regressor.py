@@ -34,17 +34,17 @@ Variants (the AirPose ablation): ``full``; ``no_exchange`` (the exchanged vector
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from mocapgraph.body.keypoint_formats import COCO17, get_format
+from mocapgraph.body.keypoint_formats import COCO17
 from mocapgraph.body.rotations import matrix_to_rotvec
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.model_file import load_weights, read_model_file, weight_arrays, write_model_file
 from mocapgraph.priors.pose_vae import _mlp, sixd_to_rotmat
+from mocapgraph.priors.views import MIN_POINTS, ViewEstimate, ViewInput, coco_keypoints
 
 FORMAT_VERSION = 1
 _KEYS = ("format_version", "body_model", "variant", "shape_bounds", "config", "info")
@@ -59,8 +59,6 @@ ROOT, POSE, SHAPE, TRANSL = slice(0, 6), slice(6, 132), slice(132, 138), slice(1
 ESTIMATE = 141
 EXCHANGE = 133
 """Other views' mean pose (126) and shape (6), then a flag: 1 when at least one other view is valid."""
-MIN_POINTS = 6
-"""A view is valid at a frame when at least this many of the 17 COCO points are present."""
 BOX_MARGIN = 1.2
 
 
@@ -69,48 +67,6 @@ def default_path(variant: str = "full") -> Path:
     if variant not in VARIANTS:
         raise MocapgraphError(f"unknown fusion regressor variant {variant!r}; known: {', '.join(VARIANTS)}")
     return DATA_DIR / ("fusion_regressor.npz" if variant == "full" else f"fusion_regressor_{variant}.npz")
-
-
-@dataclass
-class ViewInput:
-    """One camera's detections of one person.
-
-    Attributes:
-        keypoints: ``(T, F, 3)`` undistorted pixels and confidence in [0, 1], NaN where missing, in format ``fmt``.
-        fmt: keypoint format name of the registry (coco17, openpose25, blazepose33, body23) or an alias.
-        K: ``(3, 3)`` intrinsics, pixels.
-    """
-
-    keypoints: np.ndarray
-    fmt: str
-    K: np.ndarray
-
-
-@dataclass
-class ViewEstimate:
-    """One camera's estimate of the body.
-
-    Attributes:
-        camera_T_root: ``(T, 4, 4)`` the body root (pelvis) in this camera's OpenCV frame (x right,
-            y down, z forward), metres; ``world_T_camera @ camera_T_root`` is ``world_T_root``.
-        pose: ``(T, 21, 3)`` local axis-angle, radians (the body model's convention, T-pose at zero).
-        shape: ``(T, S)`` body shape, within the model's bounds.
-        valid: ``(T,)`` at least :data:`MIN_POINTS` of the 17 COCO points present in this view.
-    """
-
-    camera_T_root: np.ndarray
-    pose: np.ndarray
-    shape: np.ndarray
-    valid: np.ndarray
-
-
-def coco_keypoints(keypoints, fmt: str) -> np.ndarray:
-    """``(..., 17, 3)``: the COCO points of ``keypoints (..., F, 3)`` in format ``fmt``, by name."""
-    f = get_format(fmt)
-    keypoints = np.asarray(keypoints, dtype=float)
-    if keypoints.ndim < 2 or keypoints.shape[-2:] != (f.num_points, 3):
-        raise MocapgraphError(f"{f.name} keypoints must have shape (..., {f.num_points}, 3), got {keypoints.shape}")
-    return keypoints[..., [f.names.index(n) for n in COCO17], :]
 
 
 def crop_features(keypoints, K) -> tuple[np.ndarray, np.ndarray]:

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from mocapgraph.body.model import BodyModel
-from mocapgraph.body.rotations import relative_angle, rotvec_to_matrix
+from mocapgraph.body.rotations import axis_rotation, relative_angle, rotvec_to_matrix
 from mocapgraph.body.skeleton import PARENTS
 from mocapgraph.priors.fusion_regressor import (
     ESTIMATE,
@@ -45,13 +45,13 @@ from mocapgraph.priors.fusion_regressor import (
     VARIANTS,
     FusionNet,
     FusionRegressor,
-    ViewEstimate,
     crop_features,
     decode,
     load_default_fusion_regressor,
 )  # fmt: skip
 from mocapgraph.priors.pose_vae import rotmat_to_sixd
 from mocapgraph.priors.training import held_out_split, take_files, take_subject
+from mocapgraph.priors.views import ViewEstimate
 
 IMAGE = (1920, 1080)
 ADULT_AGE = (0.5, 1.0)
@@ -152,15 +152,6 @@ def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z], axis=-1)
 
 
-def _rotations(axis: str, angles: np.ndarray) -> np.ndarray:
-    """``(N, 3, 3)`` rotations about a coordinate axis by ``angles (N,)`` (vectorised :func:`axis_rotation`)."""
-    i, j = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}[axis]
-    R = np.tile(np.eye(3), (len(angles), 1, 1))
-    c, s = np.cos(angles), np.sin(angles)
-    R[:, i, i], R[:, i, j], R[:, j, i], R[:, j, j] = c, -s, s, c
-    return R
-
-
 def sample_cameras(target: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """``world_T_camera (N, 4, 4)`` and ``K (N, 3, 3)`` of one random camera aimed near each ``target (N, 3)``."""
     n = len(target)
@@ -173,7 +164,7 @@ def sample_cameras(target: np.ndarray, rng: np.random.Generator) -> tuple[np.nda
     tilt = rng.uniform(-1, 1, n) * np.arctan(0.35 * IMAGE[1] / f)
     roll = np.radians(rng.uniform(-5.0, 5.0, n))
     world_T_camera = np.tile(np.eye(4), (n, 1, 1))
-    world_T_camera[:, :3, :3] = _look_at(eye, target) @ _rotations("y", pan) @ _rotations("x", tilt) @ _rotations("z", roll)
+    world_T_camera[:, :3, :3] = _look_at(eye, target) @ axis_rotation("y", pan) @ axis_rotation("x", tilt) @ axis_rotation("z", roll)
     world_T_camera[:, :3, 3] = eye
     K = np.tile(np.eye(3), (n, 1, 1))
     K[:, 0, 0] = K[:, 1, 1] = f

@@ -87,13 +87,14 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body.model import BodyModel
+from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import ground_key, motion_frame_key, motion_latent_key, pose_key, root_key
 from mocapgraph.factors.reprojection import ShapeTableCache
 from mocapgraph.priors.latent import BatchedDecoder, latent_prior_factor
 from mocapgraph.priors.motion_vae import JACOBIAN_CHUNK, MotionVAE
-from mocapgraph.priors.motion_windows import POSITION_CHANNELS, WINDOW, canonical_frame, motion_features, rot_z
+from mocapgraph.priors.motion_windows import POSITION_CHANNELS, WINDOW, canonical_frame, motion_features
 
 POSE_DIM = 3 * (NUM_JOINTS - 1)
 _D_FORWARD_D_OMEGA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
@@ -191,7 +192,7 @@ class _FrameError:
         ox, oy, yaw = values.atVector(frame_key)
         ground = _Ground(values.atVector(ground_key_), self.prior.ground_pivot)
         joints, d_joints = self.cache.state_joints(values.atPose3(root_key_).matrix(), values.atVector(pose_key_), shape, H is not None)
-        Rt = rot_z(yaw).T
+        Rt = axis_rotation("z", yaw).T
         lowered = ground.lowered(joints)
         q = (lowered @ ground.A.T - np.array([ox, oy, 0.0])) @ Rt.T
         decoded, d_decoded = self.decoder(values, latent, H is not None)

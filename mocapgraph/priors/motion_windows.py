@@ -33,6 +33,7 @@ from typing import Callable
 import numpy as np
 
 from mocapgraph.body.model import BodyModel
+from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 
@@ -42,14 +43,6 @@ POSITION_CHANNELS = 3 * NUM_JOINTS
 """The first 66 channels of a frame: joint positions, canonical frame, metres."""
 CHANNELS = POSITION_CHANNELS + 6 * NUM_JOINTS
 """198 channels per frame: 66 positions, then 132 for the 6D joint orientations."""
-
-
-def rot_z(angle) -> np.ndarray:
-    """``(..., 3, 3)`` rotations by ``angle (...)`` radians about Z."""
-    c, s = np.cos(angle), np.sin(angle)
-    R = np.zeros(np.shape(angle) + (3, 3))
-    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
-    return R
 
 
 def canonical_frame(world_T_root0) -> tuple[np.ndarray, np.ndarray]:
@@ -66,7 +59,7 @@ def canonical_frame(world_T_root0) -> tuple[np.ndarray, np.ndarray]:
 def to_canonical(points, world_T_root0) -> np.ndarray:
     """World points ``(..., P, 3)`` (one leading shape per window) into the window's canonical frame."""
     yaw, origin = canonical_frame(world_T_root0)
-    R = rot_z(yaw)
+    R = axis_rotation("z", yaw)
     lead = np.ndim(yaw)
     points = np.asarray(points, dtype=float)
     extra = points.ndim - lead - 1  # axes between the window's and the xyz axis
@@ -78,7 +71,7 @@ def to_canonical(points, world_T_root0) -> np.ndarray:
 def from_canonical(points, world_T_root0) -> np.ndarray:
     """Canonical points ``(..., P, 3)`` back to the world frame: ``p = Rz(γ) q + o``."""
     yaw, origin = canonical_frame(world_T_root0)
-    R = rot_z(yaw)
+    R = axis_rotation("z", yaw)
     lead = np.ndim(yaw)
     points = np.asarray(points, dtype=float)
     expand = (slice(None),) * lead + (None,) * (points.ndim - lead - 1)
@@ -103,7 +96,7 @@ def window_features(joint_positions, joint_orientations, world_T_root0) -> np.nd
             f"(..., {WINDOW}, {NUM_JOINTS}, 3, 3), got {positions.shape} and {orientations.shape}"
         )
     yaw, _ = canonical_frame(world_T_root0)
-    Rt = np.swapaxes(rot_z(yaw), -1, -2)[(...,) + (None,) * 2 + (slice(None),) * 2]
+    Rt = np.swapaxes(axis_rotation("z", yaw), -1, -2)[(...,) + (None,) * 2 + (slice(None),) * 2]
     canonical_positions = to_canonical(positions, world_T_root0)
     six_d = (Rt @ orientations)[..., :, :2]  # (..., 25, 22, 3, 2): the first two columns
     six_d = np.swapaxes(six_d, -1, -2).reshape(lead + (WINDOW, 6 * NUM_JOINTS))

@@ -85,7 +85,7 @@ def in_capture_frame(result: Result, capture: Capture) -> Result:
     return moved
 
 
-def _matched(result: Result, gt) -> tuple[np.ndarray, np.ndarray]:
+def matched_truth(result: Result, gt) -> tuple[np.ndarray, np.ndarray]:
     """Which body states have ground truth within half a frame (``(T,)`` bool) and its indices."""
     step = np.median(np.diff(gt.timestamps)) if len(gt.timestamps) > 1 else 1.0
     idx = match_times(gt.timestamps, result.timestamps, tolerance=0.5 * step)
@@ -104,7 +104,7 @@ def aligned(result: Result, capture: Capture) -> tuple[Result, str]:
         raise MocapgraphError(f"capture {capture.name!r} has no ground truth to evaluate against")
     per_frame = result.world_frame.startswith(PER_FRAME_CAMERA)
     result = in_capture_frame(result, capture)
-    have, sel = _matched(result, gt)
+    have, sel = matched_truth(result, gt)
     align, how = _alignment(result, capture, gt.joints[sel], result.joints[have])
     if per_frame:
         how = "rigid per frame: the reference camera's true pose at each body timestamp"
@@ -119,7 +119,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
     """All metrics that the result's contents allow, against the capture's ground truth."""
     result, how = aligned(result, capture)
     gt = capture.ground_truth
-    have, sel = _matched(result, gt)
+    have, sel = matched_truth(result, gt)
     ref_joints = gt.joints[sel]
     est_joints = result.joints[have]
     out: dict[str, float] = {}

@@ -49,6 +49,7 @@ class Unit(str, Enum):
     METRE_PER_SECOND_SQUARED = "m/s²"
     METRE_PER_SECOND_CUBED = "m/s³"
     COUNT = "count"
+    FRACTION = "fraction"
 
 
 @dataclass(frozen=True, eq=False)
@@ -420,3 +421,30 @@ def num_detections(keypoints: np.ndarray) -> MetricResult:
     per_frame = np.count_nonzero(_usable(kp, 1), axis=1).astype(np.int64)
     value = float(per_frame.mean()) if per_frame.size else float("nan")
     return MetricResult(value, Unit.COUNT, int(per_frame.size), 0, per_frame)
+
+
+def covariance_coverage(est: np.ndarray, ref: np.ndarray, covariances: np.ndarray, level: float = 0.95) -> MetricResult:
+    """Fraction of points whose error lies inside the ``level`` ellipsoid of their covariance:
+    ``(e − r)ᵀ Σ⁻¹ (e − r) ≤ χ²₃(level)``. Honest covariances cover ``level`` of the points.
+
+    Args:
+        est: ``(T, J, 3)`` estimated points (e.g. joints), metres; NaN = missing.
+        ref: ``(T, J, 3)`` reference points.
+        covariances: ``(T, J, 3, 3)`` the estimate's covariance of each point, m²; a non-finite one
+            excludes its point.
+        level: the ellipsoid's probability under the covariance, in (0, 1).
+
+    Returns:
+        :class:`MetricResult` as a fraction; ``per_item`` is the per-frame fraction ``(T,)``.
+    """
+    from scipy.stats import chi2
+
+    est, ref = _joint_pair(est, ref)
+    cov = _estimate(covariances, "covariances", est.shape + (3,))
+    if not 0.0 < level < 1.0:
+        raise MocapgraphError(f"level: must lie in (0, 1), got {level!r}")
+    ok = _usable(est - ref, 1) & _usable(cov, 2)
+    inside = np.full(est.shape[:-1], np.nan)
+    err = (est - ref)[ok]
+    inside[ok] = np.einsum("ni,nij,nj->n", err, np.linalg.inv(cov[ok]), err) <= chi2.ppf(level, 3)
+    return _summarise(inside, Unit.FRACTION, _nanmean(inside, axis=1))

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.body.rotations import nearest_rotation, rotvec_to_matrix
 from mocapgraph.data_tools.io.capture import (
     MANIFEST,
     Camera,
@@ -253,8 +253,7 @@ def _project_rotation(R: np.ndarray, path: Path, field: str) -> np.ndarray:
     err = np.abs(R @ R.T - np.eye(3)).max()
     if err > _ROTATION_TOLERANCE or np.linalg.det(R) <= 0:
         raise CaptureError(f"{path}: {field}: not a rotation matrix (orthonormality error {err:.2g}, det {np.linalg.det(R):.3g})")
-    u, _, vt = np.linalg.svd(R)
-    return u @ vt
+    return nearest_rotation(R)
 
 
 def _camera_from_table(table: Mapping, name: str, path: Path, where: str, scale: float) -> CameraCalibration:

@@ -59,7 +59,6 @@ import math
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
-from scipy.signal import lfilter
 from scipy.stats import chi2
 
 from mocapgraph.body.keypoint_formats import get_format
@@ -536,6 +535,8 @@ def simulate_detections_with_info(
     rho = model.noise_frame_correlation
     unit = g_noise
     if rho > 0 and T > 1:
+        from scipy.signal import lfilter  # scipy.signal takes a second to import: only when needed
+
         unit = lfilter([math.sqrt(1 - rho * rho)], [1.0, -rho], g_noise, axis=0, zi=((1 - math.sqrt(1 - rho * rho)) * g_noise[:1]))[0]
     if math.isfinite(model.noise_tail_dof):
         nu = model.noise_tail_dof
