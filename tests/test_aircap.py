@@ -143,6 +143,7 @@ def test_command_line_writes_a_result(tmp_path, capsys):
     assert "joints" in result.covariances
 
 
+@pytest.mark.slow  # 30 s: three sequence fits with the networks; the priors' factors have their own fast tests
 def test_learned_priors_run_on_the_sequence_fit(capture):
     for priors in ({"pose_prior": "gmm"}, {"pose_prior": "vae", "motion_prior": "vae"}):
         result, metrics = run(capture, **priors)

@@ -66,6 +66,7 @@ def test_covariances_are_reported(solved):
     assert np.all(np.linalg.eigvalsh(result.covariances["camera:handheld"]) > 0)
 
 
+@pytest.mark.slow  # 12 s: starts Ray; the executors' own Ray tests run in the fast suite
 def test_ray_executor_gives_the_local_result(capture, solved):
     pytest.importorskip("ray", reason="the [distributed] extra is part of the test install")
     result, _ = run(capture, executor="ray", workers=2, covariances=False)

@@ -45,7 +45,7 @@ def cmd_bench(args) -> None:
 def cmd_bench_body(args) -> None:
     from mocapgraph.benchmarks.body import bench_body
 
-    result = bench_body(body_from(args), frames=args.frames, min_seconds=args.seconds)
+    result = bench_body(body_from(args), frames=args.frames, min_seconds=args.min_seconds)
     if args.json:
         print(json.dumps(result))
     else:
@@ -57,8 +57,9 @@ def add_parsers(subparsers) -> None:
     bench = group(subparsers, "bench", "speed and accuracy benchmarks", "bench_command")
     body = command(bench, "body", "native vs numpy posing with Jacobians, one run")
     add_body_args(body)
-    body.add_argument("--frames", type=int, default=256, help="frames per batch (default 256)")
-    body.add_argument("--seconds", type=float, default=1.0, help="time spent per variant (default 1)")
+    from mocapgraph.benchmarks.body import bench_body
+
+    function_flags(body, bench_body, {"frames": "frames per batch", "min_seconds": ("time spent per variant, seconds", {"flag": "--seconds"})})
     body.add_argument("--json", action="store_true", help="print one JSON object")
     body.set_defaults(func=cmd_bench_body)
     for name, (help, target, extra) in BENCHES.items():

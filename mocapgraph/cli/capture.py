@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapgraph.cli.common import command, group
+from mocapgraph.cli.common import command, function_flags, group
 from mocapgraph.data_tools.io.files import refuse_existing
 from mocapgraph.errors import MocapgraphError
 
@@ -126,11 +126,13 @@ def _add_detect_parser(subparsers) -> None:
     )
     parser.add_argument("videos", nargs="+", metavar="VIDEO", help="video file, or NAME=PATH to name its camera")
     parser.add_argument("--fps", type=float, help="frames per second (default: what each video states)")
-    parser.add_argument(
-        "--model-complexity", type=int, choices=(0, 1, 2), default=1,
-        help="MediaPipe landmark model; only 1 ships with mediapipe 0.10.14 (default 1)",
+    from mocapgraph.data_tools.tracking.detect_video import detect_video
+
+    function_flags(
+        parser, detect_video,
+        {"model_complexity": ("MediaPipe landmark model; only 1 ships with mediapipe 0.10.14", {"choices": (0, 1, 2)}),
+         "min_confidence": "detection/tracking threshold"},
     )  # fmt: skip
-    parser.add_argument("--min-confidence", type=float, default=0.5, help="detection/tracking threshold (default 0.5)")
     _add_common(parser)
     parser.set_defaults(func=cmd_detect)
 
