@@ -153,13 +153,6 @@ class StateModel:
         i, a = int(self.frame_state[c][j]), float(self.frame_fraction[c][j])
         return float(self.times[i] + a * (self.times[i + 1] - self.times[i])) if a else float(self.times[i])
 
-    def frame_at(self, c: int) -> np.ndarray:
-        """``(N,)`` camera ``c``'s frame at each state (-1: none; the last when several)."""
-        out = np.full(self.num_states, -1, dtype=int)
-        frames = self.camera_frames(c)
-        out[self.frame_state[c][frames]] = frames
-        return out
-
     def frames_from_states(self, c: int, per_state: np.ndarray) -> np.ndarray:
         """``(F_c, …)``: a per-state array ``(N, …)`` of camera ``c`` spread to its frames, each
         frame taking its state's entry, a frame of no state the entry of the state nearest in time."""
