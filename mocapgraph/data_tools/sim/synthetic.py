@@ -19,6 +19,7 @@ from mocapgraph.data_tools.sim.detectors import DETECTOR_PRESETS, simulate_detec
 from mocapgraph.data_tools.sim.motion_sources import PROCEDURAL_KINDS, Motion, cmu_motion, procedural_motion
 from mocapgraph.data_tools.sim.scenarios import PRESETS, scenario_cameras
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.progress import progress_bar
 
 # The subject's default motion and the detectors every camera runs, per scenario.
 PRESET_MOTION = {"aircap": "zigzag_then_act", "airpose": "turn", "rich": "turn", "phones": "walk"}
@@ -97,7 +98,7 @@ def synthesize(
         )
         for name in detectors
     }
-    for c, sim in enumerate(sims):
+    for c, sim in enumerate(progress_bar(sims, desc=f"synth {preset}", unit="camera")):
         root, pose = subject.sample(sim.timestamps)
         found = {}
         for d, name in enumerate(detectors):
