@@ -12,6 +12,8 @@ poses (CMU takes when the motion directory is present, built-in otherwise).
 
 from __future__ import annotations
 
+import contextlib
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +22,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import JOINT_NAMES, PARENTS
 from mocapgraph.cli.common import command
+from mocapgraph.progress import log_level
 
 # (take file, frame) pairs chosen for variety: walking, running, waving, dancing.
 CMU_POSES = (("cmu_02_01.npz", 40), ("cmu_09_01.npz", 20), ("cmu_13_26.npz", 150), ("cmu_05_09.npz", 120))
@@ -206,7 +209,9 @@ def run_body_figure(out_dir: Path, motion_dir: Path | None = None) -> Path:
 
 
 def cmd_demo(args) -> None:
-    path = run_demo(args.out, args.motion_dir, duration_s=args.duration, phones_duration_s=args.phones_duration)
+    # The demo prints a line per run: the pipelines' own steps only with -v.
+    with log_level(logging.WARNING) if args.verbosity <= 0 else contextlib.nullcontext():
+        path = run_demo(args.out, args.motion_dir, duration_s=args.duration, phones_duration_s=args.phones_duration)
     print(f"wrote {path.resolve()}")
 
 
