@@ -359,12 +359,13 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
                 notes.append(f"motion prior: {len(times)} body states are fewer than one window ({WINDOW}); not applied")
                 log.info("aircap: %s", notes[-1])
         bg = BodyGraph(model, body, options.graph, learned=learned, fixed_cameras=fixed)
-        graph, values = sequence_graph(bg, priors, resample(estimate, pf_times, times), windows)
+        sequence_start = resample(estimate, pf_times, times)
+        graph, values = sequence_graph(bg, priors, sequence_start, windows)
         solved = solve_staged(
             graph, values, bg.stages(options.sequence_iterations, bg.time_ordering(values)), progress="aircap sequence", project=bg.project_shape
         )  # fmt: skip
         values = solved.values
-        estimate = bg.read(values, resample(estimate, pf_times, times))
+        estimate = bg.read(values, sequence_start)
         estimate.log = list(solved.log)
     seconds = time.perf_counter() - start_time
 
