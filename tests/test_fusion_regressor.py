@@ -18,8 +18,9 @@ from mocapgraph.priors.fusion_training import (
 )  # fmt: skip
 from mocapgraph.priors.training import take_files, take_subject
 
-# Measured with the shipped full model (mpjpe 0.124 m, root depth 1.39 m, relative camera 4.35 m on
-# the 137 held-out bodies; 1.45 m on the two-camera capture of seed 1), with ~25-70 % margin.
+# Measured with the shipped full model (mpjpe 0.126 m, root depth 1.35 m, relative camera 4.26 m on
+# the 137 held-out bodies; 1.51 m on the two-camera capture of seed 1), with ~25-65 % margin. The
+# model before the anatomical pelvis (issue 13) measured 0.124 m, 1.39 m, 4.35 m and 1.45 m.
 MPJPE_M, ROOT_DEPTH_M, RELATIVE_CAMERA_M = 0.16, 1.8, 5.5
 CAPTURE_RELATIVE_CAMERA_M = 2.5
 
