@@ -3,7 +3,6 @@ pelvis is built from the take's hip line and spine, and the joints stay near whe
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import re
 
