@@ -112,3 +112,18 @@ def test_priors_train_motion_on_a_tiny_motion_directory(tmp_path, capsys):
     assert vae.latent_dim == 4 and vae.info["train_windows"] + vae.info["val_windows"] == 5 * 4  # 40 frames: starts 0, 5, 10, 15
     assert main(["priors", "train", "motion", "--motion", str(tmp_path / "nowhere"), "--out", str(out)]) == 2
     assert "nowhere: motion directory not found" in capsys.readouterr().err
+
+
+def test_priors_train_reads_the_default_motion_directory(tmp_path, monkeypatch, capsys):
+    """Without --motion the trainers read $MOCAPGRAPH_MOTION_DIR (else ../shared/motion/cmu_train)."""
+    from test_cmu_motion import write_take
+
+    from mocapgraph.priors.pose_gmm import PoseGMM
+
+    for i, subject in enumerate((1, 2, 3, 4, 6)):
+        write_take(tmp_path / f"cmu_{subject:02d}_01.npz", frames=40, seed=i)
+    monkeypatch.setenv("MOCAPGRAPH_MOTION_DIR", str(tmp_path))
+    out = tmp_path / "gmm.npz"
+    assert main(["priors", "train", "pose", "--out", str(out), "--components", "2", "-q"]) == 0
+    assert "held-out subjects" in capsys.readouterr().out
+    assert PoseGMM.load(out).info["data"] == tmp_path.name

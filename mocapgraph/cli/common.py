@@ -122,6 +122,8 @@ def function_flags(parser: argparse.ArgumentParser, fn, params: dict[str, str | 
         help, kw = (spec, {}) if isinstance(spec, str) else (spec[0], dict(spec[1]))
         flag = kw.pop("flag", "--" + name.replace("_", "-"))
         default = signature[name].default
+        if default is inspect.Parameter.empty:  # a required argument with a default of its own here (e.g. the motion directory)
+            default = None
         if "type" not in kw and default is not None:
             kw["type"] = type(default)
         shown = "" if default is None else f" (default: {default:g})" if isinstance(default, float) else f" (default: {default})"
