@@ -12,7 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import matrix_to_rotvec, rotvec_to_matrix
-from mocapgraph.body.skeleton import JOINT_NAMES, PARENTS as BODY_PARENTS
+from mocapgraph.body.skeleton import JOINT_NAMES
+from mocapgraph.body.skeleton import PARENTS as BODY_PARENTS
 from mocapgraph.data_tools.sim.cmu_motion import (
     RETARGET_MAP,
     Y_UP_TO_Z_UP,

@@ -11,10 +11,20 @@ from mocapgraph.body.keypoint_formats import COCO17, get_format
 from mocapgraph.data_tools.sim.cmu_motion import motion_dir
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.fusion_regressor import (
-    CROP, FusionRegressor, ViewInput, crop_features, default_path, load_default_fusion_regressor,
+    CROP,
+    FusionRegressor,
+    ViewInput,
+    crop_features,
+    default_path,
+    load_default_fusion_regressor,
 )  # fmt: skip
 from mocapgraph.priors.fusion_training import (
-    BodyFrames, camera_T_root, evaluate_fusion, load_body_frames, project, render_views,
+    BodyFrames,
+    camera_T_root,
+    evaluate_fusion,
+    load_body_frames,
+    project,
+    render_views,
 )  # fmt: skip
 from mocapgraph.priors.training import take_files, take_subject
 

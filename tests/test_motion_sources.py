@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from test_cmu_motion import write_take
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import matrix_to_rotvec, rotvec_to_matrix
@@ -26,7 +27,6 @@ from mocapgraph.data_tools.sim.motion_sources import (
     procedural_motion,
 )
 from mocapgraph.errors import MocapgraphError
-from test_cmu_motion import write_take
 
 NOSE = BODY_KEYPOINT_NAMES.index("nose")
 

@@ -7,15 +7,15 @@ import gtsam
 import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
+from test_cmu_motion import write_take
+from test_factors import assert_jacobians
 
+from mocapgraph.cli.main import main
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import pose_key
 from mocapgraph.graphs.initialisation import neutral_pose
-from mocapgraph.cli.main import main
 from mocapgraph.priors import PoseGMM, fit_pose_gmm, load_default_pose_gmm, pose_gmm_factor
 from mocapgraph.priors.training import nearest_mean_geodesic, split_by_subject
-from test_cmu_motion import write_take
-from test_factors import assert_jacobians
 
 TRUE_WEIGHTS = np.array([0.5, 0.3, 0.2])
 TRUE_MEANS = np.array([[0.0, 0.0, 0.0], [3.0, 3.0, 0.0], [-3.0, 2.0, 1.0]])

@@ -10,12 +10,14 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 from scipy.stats import multivariate_normal
+from test_cmu_motion import write_take
+from test_factors import max_rel_diff, numerical_jacobian
 
 from mocapgraph.body import load_body_model
+from mocapgraph.cli.main import main
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import pose_key, pose_latent_key
 from mocapgraph.graphs.initialisation import neutral_pose
-from mocapgraph.cli.main import main
 from mocapgraph.priors.plots import pose_grid_png
 from mocapgraph.priors.pose_vae import (
     PoseVAE,
@@ -27,8 +29,6 @@ from mocapgraph.priors.pose_vae import (
     train_pose_vae,
 )
 from mocapgraph.priors.pose_vae_factor import LATENT_SIGMA, PoseVAEPrior
-from test_cmu_motion import write_take
-from test_factors import max_rel_diff, numerical_jacobian
 
 MOVING = np.array([0, 1, 3, 15, 16, 17])  # hips, spine1, both shoulders, left elbow
 TINY = dict(latent=4, width=64, epochs=60, batch=128, recon_sigma=0.2)

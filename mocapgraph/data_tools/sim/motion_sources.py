@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.body.model import BodyModel
-from mocapgraph.body.rotations import matrix_to_rotvec, rotvec_to_matrix
+from mocapgraph.body.rotations import axis_rotation, matrix_to_rotvec, rotvec_to_matrix
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.sim.cmu_motion import CMUTake, load_cmu_take, retarget
 from mocapgraph.data_tools.sim.cmu_motion import motion_dir as default_motion_dir
@@ -314,14 +314,6 @@ def _schedule_actions(rng: np.random.Generator, start: float, end: float) -> lis
     return actions
 
 
-def _rot(axis: int, angle) -> np.ndarray:
-    """``(T, 3, 3)`` rotations by ``angle (T,)`` about body axis 0 (X), 1 (Y) or 2 (Z)."""
-    angle = np.asarray(angle, dtype=float)
-    v = np.zeros(angle.shape + (3,))
-    v[..., axis] = angle
-    return rotvec_to_matrix(v)
-
-
 def _mirror(rotvec: np.ndarray) -> np.ndarray:
     """The left↔right mirror (x → −x) of a local rotation: ``(x, y, z) → (x, −y, −z)``."""
     return rotvec * np.array([1.0, -1.0, -1.0])
@@ -353,9 +345,9 @@ def _build_pose(t, heading, gait, stepping, actions, sway, style: _Style):
         # In swing the ankle also lifts the toes by a third of the shank's backward tilt.
         ankle = a * amp[2] * _gait_curve("ankle", p) + swing * np.maximum(knee - hip[side], 0.0) / 3
         mirror = _mirror if side == "right" else same
-        pose[:, j[f"{side}_hip"]] = mirror(matrix_to_rotvec(_rot(0, -hip[side]) @ _rot(2, -adduction)))
+        pose[:, j[f"{side}_hip"]] = mirror(matrix_to_rotvec(axis_rotation("x", -hip[side]) @ axis_rotation("z", -adduction)))
         pose[:, j[f"{side}_knee"], 0] = knee
-        pose[:, j[f"{side}_ankle"]] = mirror(matrix_to_rotvec(_rot(0, -ankle) @ _rot(2, adduction)))
+        pose[:, j[f"{side}_ankle"]] = mirror(matrix_to_rotvec(axis_rotation("x", -ankle) @ axis_rotation("z", adduction)))
 
     # Arms: swing against the same-side leg, overridden by the planned actions.
     arm = {}
@@ -378,8 +370,8 @@ def _build_pose(t, heading, gait, stepping, actions, sway, style: _Style):
     for side in ("left", "right"):
         abd, flex, elbow_fwd, elbow_up = arm[side]
         mirror = _mirror if side == "right" else same
-        pose[:, j[f"{side}_shoulder"]] = mirror(matrix_to_rotvec(_rot(0, -flex) @ _rot(2, abd - np.pi / 2)))
-        pose[:, j[f"{side}_elbow"]] = mirror(matrix_to_rotvec(_rot(2, elbow_up) @ _rot(1, -elbow_fwd)))
+        pose[:, j[f"{side}_shoulder"]] = mirror(matrix_to_rotvec(axis_rotation("x", -flex) @ axis_rotation("z", abd - np.pi / 2)))
+        pose[:, j[f"{side}_elbow"]] = mirror(matrix_to_rotvec(axis_rotation("z", elbow_up) @ axis_rotation("y", -elbow_fwd)))
 
     # Pelvis: yaw with the swinging leg, drop on the swing side; the thorax counter-rotates.
     c, s = np.cos(2 * np.pi * p_left), np.sin(2 * np.pi * p_left)
@@ -387,7 +379,7 @@ def _build_pose(t, heading, gait, stepping, actions, sway, style: _Style):
     roll = np.deg2rad(3.0) * amp[4] * a * s
     sway_yaw = np.deg2rad(100.0) * sway * np.sin(2 * np.pi * 0.8 * style.sway_hz[0] * t + style.sway_phase[1])
     spine_yaw = (-yaw + np.deg2rad(3.0) * a * c - sway_yaw) / 3
-    spine = matrix_to_rotvec(_rot(0, lean / 3) @ _rot(1, spine_yaw))
+    spine = matrix_to_rotvec(axis_rotation("x", lean / 3) @ axis_rotation("y", spine_yaw))
     for name in ("spine1", "spine2", "spine3"):
         pose[:, j[name]] = spine
     pose[:, j["neck"], 0] = -0.6 * lean
@@ -398,7 +390,7 @@ def _build_pose(t, heading, gait, stepping, actions, sway, style: _Style):
     H[:, :2, 0] = np.stack([-sh, ch], -1)
     H[:, 2, 1] = 1.0
     H[:, :2, 2] = np.stack([ch, sh], -1)
-    rotation = H @ _rot(1, yaw + sway_yaw) @ _rot(2, roll)
+    rotation = H @ axis_rotation("y", yaw + sway_yaw) @ axis_rotation("z", roll)
     offset = np.zeros((T, 3))
     for axis, k in ((0, 0), (2, 1)):
         wave = np.sin(2 * np.pi * style.sway_hz[k] * t + style.sway_phase[k])
