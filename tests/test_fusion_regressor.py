@@ -13,7 +13,6 @@ from mocapgraph.errors import MocapgraphError
 from mocapgraph.priors.fusion_regressor import (
     CROP,
     FusionRegressor,
-    ViewInput,
     crop_features,
     default_path,
     load_default_fusion_regressor,
@@ -27,6 +26,7 @@ from mocapgraph.priors.fusion_training import (
     render_views,
 )  # fmt: skip
 from mocapgraph.priors.training import take_files, take_subject
+from mocapgraph.priors.views import ViewInput
 
 # Measured with the shipped full model (mpjpe 0.126 m, root depth 1.35 m, relative camera 4.26 m on
 # the 137 held-out bodies; 1.51 m on the two-camera capture of seed 1), with ~25-65 % margin. The
