@@ -22,7 +22,12 @@ def _training_args(args, names: list[str]) -> dict:
     return kw
 
 
-def _wrote(path: Path) -> None:
+def _report(path: Path, info: dict, held_out: str, rows: dict[str, str], fitting: str = "training") -> None:
+    """The held-out subjects, one line per measured number, the time and the file written."""
+    print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {held_out}")
+    rows = {**rows, "time": f"{info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s {fitting}"}
+    for name, value in rows.items():
+        print(f"  {name:25s} {value}")
     print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KB)")
 
 
@@ -31,50 +36,43 @@ def cmd_train_pose(args) -> None:
         from mocapgraph.priors.training import train_pose_prior
 
         gmm = train_pose_prior(body=body_from(args), progress=log.info, **_training_args(args, args.gmm_parameters))
-        path = gmm.save(args.out)
         info = gmm.info
-        print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {info['val_poses']} poses")
-        print(f"  mean log-likelihood       {info['val_mean_log_likelihood']:.2f} nats (training poses: {info['train_mean_log_likelihood']:.2f})")
-        print(f"  nearest-mean geodesic     {info['val_nearest_mean_geodesic_rad']:.3f} rad per joint")
-        print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s EM")
+        _report(gmm.save(args.out), info, f"{info['val_poses']} poses", {
+            "mean log-likelihood": f"{info['val_mean_log_likelihood']:.2f} nats (training poses: {info['train_mean_log_likelihood']:.2f})",
+            "nearest-mean geodesic": f"{info['val_nearest_mean_geodesic_rad']:.3f} rad per joint",
+        }, fitting="EM")  # fmt: skip
     else:
         from mocapgraph.priors.pose_vae import train_pose_vae
 
         vae = train_pose_vae(body=body_from(args), progress=log.info, **_training_args(args, args.vae_parameters))
-        path = vae.save(args.out, float16=True)
         info = vae.info
-        print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {info['val_poses']} poses")
-        print(f"  reconstruction geodesic   {info['val_geodesic_err_rad']:.3f} rad per modelled joint")
-        print(f"  ELBO                      {info['val_elbo']:.2f} nats per pose")
-        print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s training")
-    _wrote(path)
+        _report(vae.save(args.out, float16=True), info, f"{info['val_poses']} poses", {
+            "reconstruction geodesic": f"{info['val_geodesic_err_rad']:.3f} rad per modelled joint",
+            "ELBO": f"{info['val_elbo']:.2f} nats per pose",
+        })  # fmt: skip
 
 
 def cmd_train_motion(args) -> None:
     from mocapgraph.priors.motion_vae import train_motion_vae
 
     vae = train_motion_vae(body=body_from(args), progress=log.info, **_training_args(args, args.parameters))
-    path = vae.save(args.out)
     info = vae.info
-    print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {info['val_windows']} windows")
-    print(f"  position error            {1000 * info['val_mpjpe_m']:.1f} mm per joint (decode(encode(window)))")
-    print(f"  model                     width {info['width']}, latent {info['latent']}, {info['parameters']} parameters")
-    print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s training")
-    _wrote(path)
+    _report(vae.save(args.out), info, f"{info['val_windows']} windows", {
+        "position error": f"{1000 * info['val_mpjpe_m']:.1f} mm per joint (decode(encode(window)))",
+        "model": f"width {info['width']}, latent {info['latent']}, {info['parameters']} parameters",
+    })  # fmt: skip
 
 
 def cmd_train_fusion(args) -> None:
     from mocapgraph.priors.fusion_training import train_fusion_regressor
 
     regressor = train_fusion_regressor(body=body_from(args), progress=log.info, **_training_args(args, args.parameters))
-    path = regressor.save(args.out)
     info, val = regressor.info, regressor.info["val"]
-    print(f"held-out subjects {', '.join(map(str, info['val_subjects']))}: {val['frames']} bodies, 2 views each")
-    print(f"  root-relative MPJPE       {1000 * val['mpjpe_m']:.0f} mm (camera frame)")
-    print(f"  root position             {val['root_position_m']:.2f} m (depth {val['root_depth_m']:.2f} m, rotation {val['root_rotation_deg']:.1f}°)")
-    print(f"  camera 2 in camera 1      {val['relative_camera_m']:.2f} m, {val['relative_camera_deg']:.1f}°")
-    print(f"  time                      {info['load_seconds']:.1f} s loading, {info['fit_seconds']:.1f} s training")
-    _wrote(path)
+    _report(regressor.save(args.out), info, f"{val['frames']} bodies, 2 views each", {
+        "root-relative MPJPE": f"{1000 * val['mpjpe_m']:.0f} mm (camera frame)",
+        "root position": f"{val['root_position_m']:.2f} m (depth {val['root_depth_m']:.2f} m, rotation {val['root_rotation_deg']:.1f}°)",
+        "camera 2 in camera 1": f"{val['relative_camera_m']:.2f} m, {val['relative_camera_deg']:.1f}°",
+    })  # fmt: skip
 
 
 def add_parsers(subparsers) -> None:
