@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from mocapgraph.cli.common import command
+from mocapgraph.cli.common import command, function_flags
 from mocapgraph.errors import MocapgraphError
 
 
@@ -27,13 +27,10 @@ def cmd_batch(args) -> None:
 
 
 def add_parsers(subparsers) -> None:
-    import inspect
-
     from mocapgraph.pipelines.batch import run_batch
     from mocapgraph.pipelines.executors import EXECUTORS
     from mocapgraph.pipelines.runner import PIPELINES
 
-    defaults = inspect.signature(run_batch).parameters
     parser = command(
         subparsers, "batch", "run a pipeline on many captures, one task each, on local processes or Ray",
         description="Run PIPELINE with its default options on every capture, writing OUT/<capture directory name>/. "
@@ -42,8 +39,11 @@ def add_parsers(subparsers) -> None:
     parser.add_argument("pipeline", choices=sorted(PIPELINES), help="pipeline to run")
     parser.add_argument("captures", nargs="+", type=Path, metavar="CAPTURE", help="capture directory")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="directory of the result directories")
-    parser.add_argument("--executor", choices=EXECUTORS, default=defaults["executor"].default, help=f"local process pool or ray (default {defaults['executor'].default})")
-    parser.add_argument("--address", help="ray: cluster to join (host:6379 or auto; default: start a local instance)")
-    parser.add_argument("--workers", type=int, default=defaults["workers"].default, help=f"local processes, or CPUs of a local Ray instance (default {defaults['workers'].default})")
+    function_flags(
+        parser, run_batch,
+        {"executor": ("local process pool or ray", {"choices": EXECUTORS}),
+         "address": "ray: cluster to join (host:6379 or auto; default: start a local instance)",
+         "workers": "local processes, or CPUs of a local Ray instance"},
+    )  # fmt: skip
     parser.add_argument("--overwrite", action="store_true", help="replace existing results")
     parser.set_defaults(func=cmd_batch)

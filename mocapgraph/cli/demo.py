@@ -21,7 +21,7 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import JOINT_NAMES, PARENTS
-from mocapgraph.cli.common import command
+from mocapgraph.cli.common import command, function_flags
 from mocapgraph.progress import log_level
 
 # (take file, frame) pairs chosen for variety: walking, running, waving, dancing.
@@ -211,20 +211,17 @@ def run_body_figure(out_dir: Path, motion_dir: Path | None = None) -> Path:
 def cmd_demo(args) -> None:
     # The demo prints a line per run: the pipelines' own steps only with -v.
     with log_level(logging.WARNING) if args.verbosity <= 0 else contextlib.nullcontext():
-        path = run_demo(args.out, args.motion_dir, duration_s=args.duration, phones_duration_s=args.phones_duration)
+        path = run_demo(args.out, args.motion_dir, duration_s=args.duration_s, phones_duration_s=args.phones_duration_s)
     print(f"wrote {path.resolve()}")
 
 
 def add_parsers(subparsers) -> None:
-    import inspect
-
-    defaults = inspect.signature(run_demo).parameters
     demo = command(subparsers, "demo", "AirCap and SmartMocap on embedded synthetic captures, reports, and the body model drawn")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
-    demo.add_argument("--motion-dir", type=Path, help="CMU motion directory (default ../shared/motion/cmu_train)")
-    demo.add_argument("--duration", type=float, default=defaults["duration_s"].default, help=f"seconds of the synthetic aircap capture (default {defaults['duration_s'].default:g})")
-    demo.add_argument(
-        "--phones-duration", type=float, default=defaults["phones_duration_s"].default,
-        help=f"seconds of the uncalibrated phones capture (default {defaults['phones_duration_s'].default:g})",
+    function_flags(
+        demo, run_demo,
+        {"motion_dir": ("CMU motion directory (default ../shared/motion/cmu_train)", {"type": Path}),
+         "duration_s": ("seconds of the synthetic aircap capture", {"flag": "--duration"}),
+         "phones_duration_s": ("seconds of the uncalibrated phones capture", {"flag": "--phones-duration"})},
     )  # fmt: skip
     demo.set_defaults(func=cmd_demo)

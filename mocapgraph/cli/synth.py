@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import inspect
-
-from mocapgraph.cli.common import command, detector_list, out_args
+from mocapgraph.cli.common import command, detector_list, function_flags, out_args
 
 
 def cmd_synth(args) -> None:
@@ -13,7 +11,7 @@ def cmd_synth(args) -> None:
     from mocapgraph.data_tools.sim.synthetic import synthesize
 
     refuse_existing(args.out, args.overwrite)
-    capture = synthesize(args.preset, seed=args.seed, duration_s=args.duration, motion=args.motion, detectors=args.detectors)
+    capture = synthesize(args.preset, seed=args.seed, duration_s=args.duration_s, motion=args.motion, detectors=args.detectors)
     path = write_capture(capture, args.out, overwrite=args.overwrite)
     frames = sum(cam.num_frames for cam in capture.cameras)
     print(f"synthesised {capture.name}: {len(capture.cameras)} cameras, {frames} frames, motion: {capture.metadata['motion']}")
@@ -24,12 +22,13 @@ def add_parsers(subparsers) -> None:
     from mocapgraph.data_tools.sim.scenarios import PRESETS
     from mocapgraph.data_tools.sim.synthetic import synthesize
 
-    defaults = inspect.signature(synthesize).parameters
     synth = command(subparsers, "synth", "synthesise a capture with ground truth from a scenario preset")
     synth.add_argument("preset", choices=PRESETS, help="scenario (docs/scenarios.md)")
     out_args(synth, "capture")
-    synth.add_argument("--seed", type=int, default=defaults["seed"].default, help=f"seed of everything random (default {defaults['seed'].default})")
-    synth.add_argument("--duration", type=float, default=defaults["duration_s"].default, help=f"seconds (default {defaults['duration_s'].default:g})")
-    synth.add_argument("--motion", help="walk, turn, arms, zigzag_then_act, stand, or a CMU take (cmu:cmu_02_01.npz); default per preset")
-    synth.add_argument("--detectors", type=detector_list, help="comma-separated detector presets (default per preset)")
+    function_flags(
+        synth, synthesize,
+        {"seed": "seed of everything random", "duration_s": ("seconds", {"flag": "--duration"}),
+         "motion": "walk, turn, arms, zigzag_then_act, stand, or a CMU take (cmu:cmu_02_01.npz); default per preset",
+         "detectors": ("comma-separated detector presets; default per preset", {"type": detector_list})},
+    )  # fmt: skip
     synth.set_defaults(func=cmd_synth)
