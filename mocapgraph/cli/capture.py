@@ -1,4 +1,4 @@
-"""Captures: ``mocapgraph capture info|import`` and ``mocapgraph detect`` (keypoints from videos).
+"""Captures: ``mocapgraph capture info|import``; the helpers here are shared with ``mocapgraph detect``.
 
 Nothing heavy is imported until a command runs.
 """
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapgraph.cli.common import command, function_flags, group
+from mocapgraph.cli.common import command, group
 from mocapgraph.data_tools.io.files import refuse_existing
 from mocapgraph.errors import MocapgraphError
 
@@ -23,7 +23,7 @@ def _named_path(text: str) -> tuple[str | None, Path]:
     return None, Path(text)
 
 
-def _videos(items: list[str] | None) -> dict[str, Path]:
+def videos_from_args(items: list[str] | None) -> dict[str, Path]:
     out: dict[str, Path] = {}
     for item in items or []:
         name, path = _named_path(item)
@@ -34,7 +34,7 @@ def _videos(items: list[str] | None) -> dict[str, Path]:
     return out
 
 
-def _moving(args) -> dict[str, bool]:
+def moving_from_args(args) -> dict[str, bool]:
     moving = {name: False for name in args.static or []}
     for name in args.moving or []:
         if name in moving:
@@ -43,13 +43,13 @@ def _moving(args) -> dict[str, bool]:
     return moving
 
 
-def _calibration(args):
+def calibration_from_args(args):
     from mocapgraph.data_tools.io.importers import read_calibration
 
     return read_calibration(args.calibration, units=args.units) if args.calibration else None
 
 
-def _summary(path: Path) -> None:
+def print_summary(path: Path) -> None:
     from mocapgraph.data_tools.io.capture import load_capture
 
     capture = load_capture(path)
@@ -67,7 +67,7 @@ def _summary(path: Path) -> None:
         print(f"  {cam.name}: " + ", ".join(parts))
 
 
-def _add_common(parser: argparse.ArgumentParser) -> None:
+def add_capture_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="capture directory to write")
     parser.add_argument("--name", help="capture name (default: the directory name)")
     parser.add_argument(
@@ -88,53 +88,6 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
         help="copy the videos into the capture (default: hard-link them, copying only across file systems)",
     )  # fmt: skip
     parser.add_argument("--overwrite", action="store_true", help="replace an existing capture at --out")
-
-
-def cmd_detect(args) -> None:
-    from mocapgraph.data_tools.io.importers import assemble_capture, video_info
-    from mocapgraph.data_tools.tracking import detect_video as dv
-
-    refuse_existing(args.out, args.overwrite)
-    videos = _videos(args.videos)
-    calibration = _calibration(args)
-    rates = {}
-    for name, path in videos.items():  # every video readable and timed before the slow part
-        rates[name] = args.fps or video_info(path)[1]
-        if not rates[name]:
-            raise MocapgraphError(f"{path}: the video does not state its frame rate; pass --fps")
-    keypoints = {}
-    for name, path in videos.items():
-        # a fresh estimator per video: the tracker must not carry a person over from the last one
-        with dv.MediaPipePose(args.model_complexity, args.min_confidence) as estimator:
-            kp, boxes, _, _ = dv.detect_video(path, estimator=estimator)
-        keypoints[name] = (dv.DETECTOR_NAME, dv.FORMAT, kp, boxes)
-    path = assemble_capture(
-        videos, keypoints, calibration, rates, args.out, args.name,
-        moving=_moving(args), video_mode="copy" if args.copy_videos else "link", overwrite=args.overwrite,
-        metadata={"detector": {"name": dv.DETECTOR_NAME, "model_complexity": args.model_complexity,
-                               "min_confidence": args.min_confidence}},
-    )  # fmt: skip
-    _summary(path)
-
-
-def _add_detect_parser(subparsers) -> None:
-    parser = command(
-        subparsers, "detect",
-        "detect 2D body keypoints in videos (MediaPipe) and write a capture",
-        description="Run MediaPipe Pose (BlazePose, 33 points; the [video] extra) on every frame of each video "
-        "and write a capture with one camera per video, named by the file stem or NAME=PATH.",
-    )
-    parser.add_argument("videos", nargs="+", metavar="VIDEO", help="video file, or NAME=PATH to name its camera")
-    parser.add_argument("--fps", type=float, help="frames per second (default: what each video states)")
-    from mocapgraph.data_tools.tracking.detect_video import detect_video
-
-    function_flags(
-        parser, detect_video,
-        {"model_complexity": ("MediaPipe landmark model; only 1 ships with mediapipe 0.10.14", {"choices": (0, 1, 2)}),
-         "min_confidence": "detection/tracking threshold"},
-    )  # fmt: skip
-    _add_common(parser)
-    parser.set_defaults(func=cmd_detect)
 
 
 def cmd_import(args) -> None:
@@ -158,10 +111,10 @@ def cmd_import(args) -> None:
     if not keypoints and not args.videos:
         raise MocapgraphError("nothing to import: give --openpose CAMERA=FOLDER and/or --videos")
     path = assemble_capture(
-        _videos(args.videos), keypoints, _calibration(args), args.fps, args.out, args.name,
-        moving=_moving(args), video_mode="copy" if args.copy_videos else "link", overwrite=args.overwrite,
+        videos_from_args(args.videos), keypoints, calibration_from_args(args), args.fps, args.out, args.name,
+        moving=moving_from_args(args), video_mode="copy" if args.copy_videos else "link", overwrite=args.overwrite,
     )  # fmt: skip
-    _summary(path)
+    print_summary(path)
 
 
 def _add_import_parser(subparsers) -> None:
@@ -181,7 +134,7 @@ def _add_import_parser(subparsers) -> None:
     )  # fmt: skip
     parser.add_argument("--videos", nargs="+", metavar="VIDEO", help="videos: PATH (camera = file stem) or CAMERA=PATH")
     parser.add_argument("--fps", type=float, required=True, help="frames per second; timestamps are frame / fps")
-    _add_common(parser)
+    add_capture_flags(parser)
     parser.set_defaults(func=cmd_import)
 
 
@@ -215,4 +168,3 @@ def add_parsers(subparsers) -> None:
     info.add_argument("capture", type=Path, help="capture directory")
     info.set_defaults(func=cmd_info)
     _add_import_parser(captures)
-    _add_detect_parser(subparsers)
