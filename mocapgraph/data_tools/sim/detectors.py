@@ -62,7 +62,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS, left_right_pairs
+from mocapgraph.body.labelling import part_name, swap_permutation
+from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
 from mocapgraph.data_tools.geometry.camera_model import MIN_DEPTH_M, in_frame_mask, in_image, project_points
 from mocapgraph.data_tools.io.capture import Detector
 from mocapgraph.errors import MocapgraphError
@@ -96,24 +97,6 @@ DEFAULT_DIFFICULTY: dict[str, float] = {
     "pinky": 2.0, "index": 2.0, "thumb": 2.0,
 }  # fmt: skip
 """Noise multiplier per body part (point name without its left/right side); 1 when not listed."""
-
-LIMB_PARTS: dict[str, tuple[str, ...]] = {
-    "arm": ("elbow", "wrist", "pinky", "index", "thumb"),
-    "leg": ("knee", "ankle", "heel", "big_toe", "small_toe", "foot_index"),
-}
-"""The parts whose left/right labels a single-limb swap exchanges."""
-
-
-def part_name(point_name: str) -> str:
-    """A point's body part without its side: ``left_wrist`` → ``wrist``, ``mouth_left`` → ``mouth``."""
-    for side in ("left_", "right_"):
-        if point_name.startswith(side):
-            return point_name[len(side) :]
-    for side in ("_left", "_right"):
-        if point_name.endswith(side):
-            return point_name[: -len(side)]
-    return point_name
-
 
 @dataclass(frozen=True)
 class DetectorModel:
@@ -425,21 +408,6 @@ def _nan_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(none, np.nan, lo), np.where(none, np.nan, hi)
 
 
-def _pair_index(names, parts=None) -> np.ndarray:
-    """Permutation of the format's points that swaps left and right (of ``parts`` only, if given)."""
-    perm = np.arange(len(names))
-    for i, j in left_right_pairs(names):
-        if parts is None or part_name(names[i]) in parts:
-            perm[i], perm[j] = j, i
-    # BlazePose's mouth_left / mouth_right carry the side as a suffix
-    for i, n in enumerate(names):
-        if n.endswith("_left") and n[:-5] + "_right" in names:
-            j = names.index(n[:-5] + "_right")
-            if parts is None or part_name(n) in parts:
-                perm[i], perm[j] = j, i
-    return perm
-
-
 def simulate_detections(
     body, shape, root, pose, world_T_camera, K, distortion, image_size, model: DetectorModel, rng, *, ground_z: float = 0.0
 ) -> Detector:
@@ -592,10 +560,10 @@ def simulate_detections_with_info(
     limb_event = detected_person & (u_limb_swap < model.limb_swap_prob)
     limb = np.where(u_limb_choice < model.limb_swap_leg_fraction, "leg", "arm")
     limb_swapped = np.where(limb_event, limb, "")
-    rows[body_swapped] = rows[body_swapped][:, _pair_index(fmt.names)]
-    for name, parts in LIMB_PARTS.items():
+    rows[body_swapped] = rows[body_swapped][:, swap_permutation(fmt.names, "body")]
+    for name, kind in (("arm", "arms"), ("leg", "legs")):
         sel = limb_swapped == name
-        rows[sel] = rows[sel][:, _pair_index(fmt.names, parts)]
+        rows[sel] = rows[sel][:, swap_permutation(fmt.names, kind)]
 
     # --- boxes
     everything = np.concatenate([np.where(in_frame[..., None], pixels, np.nan), rows[..., :2]], axis=1)
@@ -625,11 +593,9 @@ __all__ = [
     "DetectionInfo",
     "DetectorModel",
     "HEAD_SPHERE_RADIUS_M",
-    "LIMB_PARTS",
     "MIN_DEPTH_M",
     "body_capsules",
     "occluded_by_capsules",
-    "part_name",
     "segment_distance",
     "self_occluded",
     "simulate_detections",
