@@ -110,11 +110,40 @@ _BLAZEPOSE33 = (
 )  # fmt: skip
 
 
+# OpenPose's experimental BODY_25B (``poseParameters.cpp``, POSE_BODY_25B_BODY_PARTS): COCO-17's
+# order, then two MPII head points and BODY_25's six foot points.
+_BODY25B = COCO17 + ("upper_neck", "head_top") + _BODY25_SNAKE[19:]
+
+# Halpe-FullBody's 26 body points (AlphaPose, RTMPose's halpe26 models, Pose2Sim's default
+# "Body_with_feet"): COCO-17's order, then head top, neck, pelvis and the feet.
+_HALPE26 = COCO17 + (
+    "head", "neck", "hip", "left_big_toe", "right_big_toe", "left_small_toe", "right_small_toe",
+    "left_heel", "right_heel",
+)  # fmt: skip
+
+# Points with no body keypoint behind them. BODY_25B's neck is MPII's "upper neck" and Halpe's
+# sits with it: Pose2Sim's OpenSim marker sets put both 8 cm above the shoulder line, where
+# BODY_25's neck sits (OpenSim_Setup/Markers_Body25b.xml, Markers_Halpe26.xml, Markers_Body25.xml),
+# so neither is the shoulders' midpoint. Head tops lie above every face point.
+_UNMAPPED = ("upper_neck", "head_top", "head", "neck")
+
+
 def _body25_mapping():
     mapping = list(_one_to_one(_BODY25_SNAKE))
     # OpenPose's neck and mid-hip were trained as midpoints of the COCO shoulders and hips.
     mapping[_BODY25.index("Neck")] = {"left_shoulder": _MIDPOINT, "right_shoulder": _MIDPOINT}
     mapping[_BODY25.index("MidHip")] = {"left_hip": _MIDPOINT, "right_hip": _MIDPOINT}
+    return tuple(mapping)
+
+
+def _head_and_feet_mapping(names):
+    """COCO-17 plus head and foot points: one-to-one by name, the pelvis as the hips' midpoint."""
+    mapping = list(_one_to_one(names))
+    for i, name in enumerate(names):
+        if name in _UNMAPPED:
+            mapping[i] = None
+        elif name == "hip":
+            mapping[i] = {"left_hip": _MIDPOINT, "right_hip": _MIDPOINT}
     return tuple(mapping)
 
 
@@ -148,6 +177,24 @@ FORMATS: dict[str, KeypointFormat] = {
             aliases=("body25", "openpose"),
         ),
         KeypointFormat(
+            name="openpose25b",
+            names=_BODY25B,
+            mapping=_head_and_feet_mapping(_BODY25B),
+            zero_is_missing=True,
+            min_confidence=0.0,
+            confidence="OpenPose part confidence in [0, 1]; (0, 0, 0) marks a missing part",
+            aliases=("body25b",),
+        ),
+        KeypointFormat(
+            name="halpe26",
+            names=_HALPE26,
+            mapping=_head_and_feet_mapping(_HALPE26),
+            zero_is_missing=False,
+            min_confidence=0.0,
+            confidence="detector score (AlphaPose, RTMPose); scores above 1 are clipped to 1",
+            aliases=("halpe",),
+        ),
+        KeypointFormat(
             name="blazepose33",
             names=_BLAZEPOSE33,
             mapping=_blazepose_mapping(),
@@ -168,16 +215,41 @@ FORMATS: dict[str, KeypointFormat] = {
     )
 }
 
-_ALIASES = {alias: f.name for f in FORMATS.values() for alias in (f.name, *f.aliases)}
+def _key(name: str) -> str:
+    """Registry lookup key: case, ``_`` and ``-`` ignored, so Pose2Sim's ``BODY_25B`` and ``HALPE_26`` resolve."""
+    return re.sub(r"[_\-]", "", str(name).lower())
+
+
+_ALIASES = {_key(alias): f.name for f in FORMATS.values() for alias in (f.name, *f.aliases)}
 
 
 def get_format(name: str) -> KeypointFormat:
     """The registered format ``name`` (or an alias), or a MocapgraphError listing the known ones."""
-    key = str(name).lower()
+    key = _key(name)
     if key not in _ALIASES:
-        known = ", ".join(sorted(FORMATS))
-        raise MocapgraphError(f"unknown keypoint format {name!r}; known formats: {known}")
+        raise MocapgraphError(f"unknown keypoint format {name!r}; known formats: {_known()}")
     return FORMATS[_ALIASES[key]]
+
+
+def _known() -> str:
+    return ", ".join(f"{f.name} ({f.num_points} points)" for f in FORMATS.values())
+
+
+def formats_with_points(num_points: int) -> list[str]:
+    """Names of the registered formats with ``num_points`` points, in registry order."""
+    return [f.name for f in FORMATS.values() if f.num_points == num_points]
+
+
+def format_for_points(num_points: int, source: str = "keypoints") -> KeypointFormat:
+    """The one registered format with ``num_points`` points, or a MocapgraphError naming ``source``
+    when none has that many or several do (BODY_25 and BODY_25B both have 25)."""
+    names = formats_with_points(num_points)
+    if len(names) == 1:
+        return FORMATS[names[0]]
+    if not names:
+        hint = " (18 points is OpenPose's COCO-18 model, which is not supported: use BODY_25)" if num_points == 18 else ""
+        raise MocapgraphError(f"{source}: {num_points} points per person match no known format{hint}; known formats: {_known()}")
+    raise MocapgraphError(f"{source}: {num_points} points per person could be {' or '.join(names)}; say which with --format")
 
 
 def format_table(table: BodyTable, name: str) -> BodyTable:
