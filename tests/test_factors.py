@@ -15,7 +15,9 @@ from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
 from mocapgraph.factors.camera_priors import camera_prior_factor
 from mocapgraph.factors.keys import camera_key, pose_key, root_key, shape_key
-from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
+from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.reprojection_kernel import reproject_numpy
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
@@ -262,6 +264,74 @@ def test_reprojection_with_a_fixed_shape(scene):
             scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
             scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, fixed_shape=scene.shape,
         )  # fmt: skip
+
+
+def labelled_factor(scene, observed, labelling):
+    return reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scene.intrinsics, observed, scene.weights, FORMAT, scene.scale, noise_px=scene.noise_px, labelling=labelling,
+    )  # fmt: skip
+
+
+PERMUTATIONS = np.stack([swap_permutation(get_format(FORMAT).names, k) for k in SWAP_KINDS])
+
+
+def test_labelled_reprojection_undoes_swaps(scene):
+    """Camera 0's whole body and camera 2's legs swapped: the max-mixture takes "body" and
+    "legs" there and "none" for camera 1; its error equals the unswapped factor's plus the two
+    relabellings' cost; its Jacobians equal central differences. Under L2 (the scale at
+    infinity) it keeps the points as detected."""
+    scene.scale.sigma_px = 8.0
+    observed = scene.observed.copy()
+    observed[0] = observed[0, PERMUTATIONS[1]]
+    observed[2] = observed[2, PERMUTATIONS[3]]
+    # the weights stay with their points under a swap, as a detector's confidences do
+    labelling = Labelling(PERMUTATIONS, cost=2.0)
+    weights = scene.weights.copy()
+    weights[0], weights[2] = weights[0, PERMUTATIONS[1]], weights[2, PERMUTATIONS[3]]
+    factor = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scene.intrinsics, observed, weights, FORMAT, scene.scale, noise_px=scene.noise_px, labelling=labelling,
+    )  # fmt: skip
+    assert factor.dim() == scene.factor.dim() + 1
+    error = factor.error(scene.values)
+    assert labelling.choice.tolist() == [1, 0, 3]
+    assert error == pytest.approx(scene.factor.error(scene.values) + 2 * 2.0, rel=1e-9)
+    assert_jacobians(factor, scene.values)
+    scene.scale.sigma_px = math.inf
+    as_detected = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scene.intrinsics, observed, weights, FORMAT, scene.scale, noise_px=scene.noise_px,
+    )  # fmt: skip
+    assert factor.error(scene.values) == pytest.approx(as_detected.error(scene.values), rel=1e-12)
+    assert labelling.choice.tolist() == [0, 0, 0]
+    assert_jacobians(factor, scene.values)
+
+
+def test_labelling_is_the_cheapest_hypothesis(scene):
+    """The factor's error is the minimum over every camera's hypotheses of the factors built with
+    that relabelling applied (each hypothesis not the identity costing ``cost``): 4³ combinations."""
+    scene.scale.sigma_px = 8.0
+    labelling = Labelling(PERMUTATIONS, cost=0.5)
+    error = labelled_factor(scene, scene.observed, labelling).error(scene.values)
+    best = np.inf
+    for combo in np.ndindex(4, 4, 4):
+        observed = np.stack([scene.observed[c, PERMUTATIONS[h]] for c, h in enumerate(combo)])
+        weights = np.stack([scene.weights[c, PERMUTATIONS[h]] for c, h in enumerate(combo)])
+        plain = reprojection_factor(
+            scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+            scene.intrinsics, observed, weights, FORMAT, scene.scale, noise_px=scene.noise_px,
+        )  # fmt: skip
+        best = min(best, plain.error(scene.values) + 0.5 * np.count_nonzero(combo))
+    assert error == pytest.approx(best, rel=1e-9)
+
+
+def test_labelling_is_checked(scene):
+    for bad in (PERMUTATIONS[::-1], PERMUTATIONS[:, :5], PERMUTATIONS.astype(float), np.stack([PERMUTATIONS[0], np.zeros(17, int)])):
+        with pytest.raises(MocapgraphError, match="labelling.permutations"):
+            labelled_factor(scene, scene.observed, Labelling(bad, cost=1.0))
+    with pytest.raises(MocapgraphError, match="labelling.cost"):
+        labelled_factor(scene, scene.observed, Labelling(PERMUTATIONS, cost=-1.0))
 
 
 def interpolated_factor(scene, fraction: float, shape=True):

@@ -40,7 +40,7 @@ performance notes), so the kernel has to be per keypoint, inside.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -145,10 +145,52 @@ def _check_rigid(T: np.ndarray, name: str) -> np.ndarray:
     return T
 
 
+@dataclass
+class Labelling:
+    """The labelling hypotheses of one reprojection factor's cameras: a max-mixture over
+    permutations of the detected points (left/right swaps, :mod:`mocapgraph.body.labelling`).
+
+    At every evaluation each camera takes the permutation under which its robust cost, plus
+    ``cost`` for any but the first, is lowest; the choice is re-made at each linearisation, as
+    a max-mixture linearises only its most probable component. Only under a robust scale: with
+    the scale at infinity (L2, the first stage of an annealed solve, which finds the body from a
+    rough start) the points stay as detected, since from a rough start every camera relabelled
+    and the body turned around is as good a fit as the truth, and a solve could settle there. Evaluate the factor (e.g.
+    ``graph.error(values)``) and read ``choice`` to learn which labelling each camera took there.
+
+    Attributes:
+        permutations: ``(H, K)`` integer permutations of the format's points, the first the
+            identity (the points as detected); hypothesis ``h`` reads point ``k`` of the body
+            from detected point ``permutations[h, k]``.
+        cost: the cost of relabelling one camera, in the units of the factor's error
+            (``½|r|²``, whitened): it keeps a camera as detected unless another labelling
+            clearly fits better.
+        choice: ``(C,)`` per camera, the hypothesis the last evaluation took.
+    """
+
+    permutations: np.ndarray
+    cost: float
+    choice: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+
+    def check(self, K: int, C: int) -> None:
+        p = np.asarray(self.permutations)
+        if (
+            p.ndim != 2
+            or p.shape[1] != K
+            or not np.issubdtype(p.dtype, np.integer)
+            or np.any(np.sort(p, axis=1) != np.arange(K))
+            or np.any(p[0] != np.arange(K))
+        ):
+            raise MocapgraphError(f"labelling.permutations: (H, {K}) permutations of the points, the first the identity; got shape {p.shape}")
+        if not (np.isfinite(self.cost) and self.cost >= 0):
+            raise MocapgraphError(f"labelling.cost must be a finite number >= 0, got {self.cost}")
+        self.choice = np.zeros(C, dtype=np.intp)
+
+
 class _ReprojectionError:
     """The CustomFactor callback: reads the variables, runs the native kernel, slices the Jacobian."""
 
-    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, rows):
+    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, rows, labelling):
         self.cache = cache
         self.rows = rows  # the kernel's rows that are kept (usable observations), or None for all
         self.states = states  # [(root key, pose key)]: one state, or two interpolated by `fraction`
@@ -167,6 +209,31 @@ class _ReprojectionError:
         self.min_depth = min_depth
         self.kernel = native_module().reproject
         self.interpolate = native_module().interpolate_pose  # interpolate_root without its wrapper: ~1 µs a call
+        self.labelling = labelling
+
+    def _choose(self, entry, args, weights) -> np.ndarray:
+        """Per camera, the labelling whose robust cost is lowest at the current values (ties: as
+        detected), the cost of a relabelling included. One kernel pass without Jacobians gives the
+        predicted pixels; every hypothesis is then scored in numpy."""
+        C = len(self.cameras)
+        K = self.observed.shape[1]
+        if not np.isfinite(self.scale.sigma_px):
+            return np.zeros(C, dtype=np.intp)
+        # observed 0 and weight 1: the residual is the predicted pixel itself, where it is valid
+        ones = np.ascontiguousarray(np.broadcast_to(entry.table.mapped[None].astype(float), (C, K)))
+        predicted, _, in_front = self.kernel(*entry.arrays, *args, np.zeros((C, K, 2)), ones, np.inf, self.min_depth, False)
+        predicted = predicted.reshape(C, K, 2)
+        sigma2 = self.scale.sigma_px**2
+        costs = np.empty((len(self.labelling.permutations), C))
+        for h, perm in enumerate(self.labelling.permutations):
+            e = predicted - self.observed[:, perm]
+            e2 = np.sum(e * e, axis=-1)
+            rho = e2 if not np.isfinite(sigma2) else sigma2 * e2 / (sigma2 + e2)
+            w = weights[:, perm]
+            ok = in_front & np.isfinite(e2) & (w > 0)
+            costs[h] = 0.5 * np.sum(np.where(ok, w * w * np.where(ok, rho, 0.0), 0.0), axis=1)
+        costs[1:] += self.labelling.cost
+        return np.argmin(costs, axis=0)
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
         shape = self.fixed_shape if self.shape_key is None else values.atVector(self.shape_key)
@@ -182,24 +249,27 @@ class _ReprojectionError:
             next_root, next_pose = self.states[1]
             root, A0, A1 = self.interpolate(values.atPose3(root_key).matrix(), values.atPose3(next_root).matrix(), a)
             pose = (1.0 - a) * values.atVector(pose_key) + a * values.atVector(next_pose)
+        args = (root, pose.reshape(NUM_JOINTS - 1, 3), cameras, self.intrinsics)
+        observed, rows = self.observed, self.rows
         try:
-            residual, jac, _ = self.kernel(
-                *entry.arrays,
-                root,
-                pose.reshape(NUM_JOINTS - 1, 3),
-                cameras,
-                self.intrinsics,
-                self.observed,
-                weights,
-                self.scale.sigma_px,
-                self.min_depth,
-                H is not None,
-            )
+            if self.labelling is not None:
+                self.labelling.choice = choice = self._choose(entry, args, weights)
+                perm = self.labelling.permutations[choice]  # (C, K)
+                observed = np.ascontiguousarray(np.take_along_axis(observed, perm[..., None], axis=1))
+                weights = np.ascontiguousarray(np.take_along_axis(weights, perm, axis=1))
+                # A permutation within each camera keeps its number of usable points: the
+                # residual's dimension does not change with the labelling, only which rows.
+                rows = np.flatnonzero(np.repeat((np.isfinite(observed).all(-1) & (weights > 0)).ravel(), 2))
+            residual, jac, _ = self.kernel(*entry.arrays, *args, observed, weights, self.scale.sigma_px, self.min_depth, H is not None)
         except ValueError as exc:
             raise MocapgraphError(str(exc)) from None
-        if self.rows is not None:
-            residual = residual[self.rows]
-            jac = None if jac is None else jac[self.rows]
+        if rows is not None:
+            residual = residual[rows]
+            jac = None if jac is None else jac[rows]
+        if self.labelling is not None:
+            # the relabellings' cost as one more row, constant in the variables
+            residual = np.append(residual, np.sqrt(2.0 * self.labelling.cost * np.count_nonzero(self.labelling.choice)))
+            jac = None if jac is None else np.vstack([jac, np.zeros((1, jac.shape[1]))])
         if H is not None:
             P = 6 + POSE_DIM + entry.table.shape_dim
             if len(self.states) == 1:
@@ -235,6 +305,7 @@ def reprojection_factor(
     fixed_shape=None,
     next_state: tuple[int, int] | None = None,
     fraction: float = 0.0,
+    labelling: Labelling | None = None,
 ) -> gtsam.CustomFactor:
     """Reprojection of one body state's keypoints into C cameras (see the module docstring).
 
@@ -260,11 +331,13 @@ def reprojection_factor(
             the state ``fraction`` of the way from ``(root_key, pose_key)`` to it
             (:func:`~mocapgraph.factors.interpolation.interpolate_root`, joint rotations linear).
         fraction: in ``(0, 1)`` with ``next_state``.
+        labelling: the labelling hypotheses of every camera (:class:`Labelling`; its ``choice``
+            says after each evaluation which one each camera took); None: the points as detected.
 
     Returns:
         A ``gtsam.CustomFactor`` on ``[root_key, pose_key, *next_state, shape_key, *refined
-        camera keys]`` (camera order), two rows per usable observation (camera-major), unit noise
-        model (whitened inside).
+        camera keys]`` (camera order), two rows per usable observation (camera-major) and, with
+        ``labelling``, one row for the relabellings' cost; unit noise model (whitened inside).
 
     Raises:
         MocapgraphError: for inconsistent cameras, shapes, negative weights, non-positive
@@ -326,7 +399,8 @@ def reprojection_factor(
     usable = np.repeat((np.isfinite(observed).all(-1) & (weights > 0)).ravel(), 2)
     if not usable.any():
         raise MocapgraphError("reprojection_factor: no usable observation (every point is NaN or has weight 0)")
-
+    if labelling is not None:
+        labelling.check(K, C)
     error = _ReprojectionError(
         table_cache,
         states,
@@ -341,5 +415,7 @@ def reprojection_factor(
         scale,
         float(min_depth),
         None if usable.all() else np.flatnonzero(usable),
+        labelling,
     )
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(int(usable.sum())), keys, error)
+    rows = int(usable.sum()) + (labelling is not None)
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), keys, error)

@@ -20,13 +20,15 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
 from mocapgraph.factors.keys import motion_frame_key, motion_latent_key, pose_key, pose_latent_key, root_key, shape_key
-from mocapgraph.factors.reprojection import ShapeTableCache, reprojection_factor
+from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import (
     camera_smoothness_factor,
@@ -36,7 +38,7 @@ from mocapgraph.factors.smoothness import (
     root_smoothness_factor,
 )
 from mocapgraph.graphs.solver import annealed_stages
-from mocapgraph.graphs.state_model import Estimate, StateModel
+from mocapgraph.graphs.state_model import Estimate, Observation, StateModel
 from mocapgraph.graphs.uncertainty import joint_covariances
 from mocapgraph.priors.motion_windows import WINDOW
 
@@ -74,6 +76,11 @@ class GraphOptions:
     camera_sigma_m_s: float = 2.0
     ground_sigma_m: float = 0.02
     camera_clearance_m: float = 0.3
+    # Left/right swaps of the detector (mocapgraph.body.labelling): each camera-frame's labelling
+    # is the hypothesis with the lower robust cost, re-decided at every linearisation; a
+    # relabelling costs as much as one point `swap_cost_px` noise sigmas off.
+    swaps: bool = True
+    swap_cost_px: float = 4.0
 
     def check(self) -> None:
         for name, value, choices in (
@@ -84,7 +91,8 @@ class GraphOptions:
             if value not in choices:
                 raise MocapgraphError(f"{name} {value!r}: choose one of {', '.join(choices)}")
         for name in ("noise_px", "gm_sigma_px", "pose_prior_sigma_rad", "shape_prior_sigma", "root_sigma_rad_s", "root_sigma_m_s",
-                     "pose_sigma_rad_s", "pose_sigma_rad_s2", "camera_sigma_rad_s", "camera_sigma_m_s", "ground_sigma_m"):  # fmt: skip
+                     "pose_sigma_rad_s", "pose_sigma_rad_s2", "camera_sigma_rad_s", "camera_sigma_m_s", "ground_sigma_m",
+                     "swap_cost_px"):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
@@ -147,6 +155,8 @@ class BodyGraph:
         self.caches: dict[str, ShapeTableCache] = {}
         self.estimated = [c for c in model.observed_cameras() if c not in self.fixed_cameras]
         self.windows: list[int] = []
+        # per state, its reprojection factors' labellings and the observations they cover
+        self.labellings: dict[int, list[tuple[Labelling, list[Observation]]]] = {}
 
     # -- variables ------------------------------------------------------------------------------
 
@@ -213,6 +223,7 @@ class BodyGraph:
         """State ``i``'s reprojection factors (one per keypoint format and fraction, all its
         cameras) and pose priors."""
         groups: dict[tuple[str, float], list] = {}
+        self.labellings[i] = []
         for o in self.model.states[i]:
             groups.setdefault((o.fmt, o.fraction), []).append(o)
         for (fmt, fraction), obs in groups.items():
@@ -222,15 +233,43 @@ class BodyGraph:
                 keys.append(None if held is not None else self.model.camera_var(o.camera, o.frame))
                 fixed.append(held[o.frame] if held is not None else None)
             between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": fraction} if fraction else {}
+            labelling = None
+            if self.options.swaps:
+                labelling = Labelling(self.permutations(fmt), 0.5 * self.options.swap_cost_px**2)
+                self.labellings[i].append((labelling, obs))
             graph.add(
                 reprojection_factor(
                     self.body, self.cache(fmt), root_key(i), pose_key(i), self.shape_key, keys, fixed,
                     np.stack([self.model.cameras[o.camera].intrinsics for o in obs]), np.stack([o.observed for o in obs]),
                     np.stack([o.weights for o in obs]), fmt, self.scale, noise_px=self.options.noise_px,
-                    fixed_shape=self.fixed_shape, **between,
+                    fixed_shape=self.fixed_shape, labelling=labelling, **between,
                 )  # fmt: skip
             )
         self.add_pose_priors(graph, i)
+
+    def permutations(self, fmt: str) -> np.ndarray:
+        """``(H, K)`` the labelling hypotheses of format ``fmt`` (:data:`~mocapgraph.body.labelling.SWAP_KINDS` order)."""
+        names = self.body.keypoint_names if fmt == "body" else get_format(fmt).names
+        return np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+
+    def relabelled(self, estimate: Estimate) -> dict[int, np.ndarray]:
+        """Per camera, ``(F_c,)`` int8 the labelling its detections take at ``estimate``: the index into :data:`~mocapgraph.body.labelling.SWAP_KINDS` (0 as
+        detected) of every frame with observations, -1 for the others. All zeros without ``swaps``.
+        Decided at the robust scale the solves end with (``gm_sigma_px``)."""
+        self.scale.sigma_px = self.options.gm_sigma_px
+        graph = gtsam.NonlinearFactorGraph()
+        for i in range(self.model.num_states):
+            self.add_state(graph, i)
+        graph.error(self.values(estimate))  # every labelling takes its choice at the estimate
+        out = {c: np.full(len(cam.timestamps), -1, dtype=np.int8) for c, cam in enumerate(self.model.cameras)}
+        for i in range(self.model.num_states):
+            for o in self.model.states[i]:
+                out[o.camera][o.frame] = max(out[o.camera][o.frame], 0)
+            for labelling, obs in self.labellings[i]:
+                for o, h in zip(obs, labelling.choice):
+                    if h:  # with several detectors: any relabelling shows
+                        out[o.camera][o.frame] = h
+        return out
 
     def add_pose_priors(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
         """The weak regulariser on every joint of state ``i`` and the pose GMM, if loaded (the

@@ -42,7 +42,7 @@ from mocapgraph.graphs.sync import SYNC_POLICIES
 from mocapgraph.pipelines.camera_priors import camera_priors
 from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import capture_state_model, detector_names
-from mocapgraph.pipelines.results import estimate_result
+from mocapgraph.pipelines.results import estimate_result, swap_notes
 from mocapgraph.priors.motion_windows import WINDOW
 from mocapgraph.progress import progress_bar
 
@@ -378,8 +378,11 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     if detections.min() == 0:
         notes.append(f"{int((detections == 0).sum())} of {len(times)} body states have no detection near them: flagged unconstrained")
         log.info("aircap: %s", notes[-1])
+    swaps = (bg if options.mode == "sequence" else per_frame).relabelled(estimate)
+    notes += swap_notes(model.names, swaps)
     result = estimate_result(
-        "aircap", capture, model, body, estimate, "capture", options_parameters(options), capture_label, cameras=sorted(tracks), all_frames=True
+        "aircap", capture, model, body, estimate, "capture", options_parameters(options), capture_label, cameras=sorted(tracks), all_frames=True,
+        swaps=swaps,
     )  # fmt: skip
     if options.covariances:
         if graph is None:

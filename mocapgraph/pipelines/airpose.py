@@ -32,7 +32,7 @@ from mocapgraph.graphs.initialisation import INITIALISERS, fuse_bodies, fused_sh
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate
 from mocapgraph.pipelines.observations import capture_state_model
-from mocapgraph.pipelines.results import estimate_result
+from mocapgraph.pipelines.results import estimate_result, swap_notes
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +97,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     for note in notes:
         log.info("airpose: %s", note)
     bg = BodyGraph(model, body, options.graph, fixed_cameras={0: np.tile(np.eye(4), (len(capture.cameras[0].timestamps), 1, 1))})
-    graph = values = None
+    graph = values = swaps = None
     if options.refine:
         graph, values = bg.sequence(estimate)
         log.info("airpose: AirPose+, %d frames, %d camera poses", model.num_states, len(bg.camera_vars()))
@@ -106,10 +106,13 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
         values = solved.values
         estimate = bg.read(values, estimate)
         estimate.log = list(solved.log)
+        swaps = bg.relabelled(estimate)
+        notes += swap_notes(model.names, swaps)
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
     result = estimate_result(
-        "airpose", capture, model, body, estimate, PER_FRAME_CAMERA + model.names[0], options_parameters(options), capture_label, cameras=placed_cameras
+        "airpose", capture, model, body, estimate, PER_FRAME_CAMERA + model.names[0], options_parameters(options), capture_label, cameras=placed_cameras,
+        swaps=swaps,
     )  # fmt: skip
     if options.covariances and graph is not None:
         result.covariances.update(bg.covariances(graph, values, estimate))

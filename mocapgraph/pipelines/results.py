@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.body.model import BodyModel
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import CameraTrack, Result
@@ -21,6 +22,7 @@ def estimate_result(
     capture_label: str = "",
     cameras: list[int] | None = None,
     all_frames: bool = False,
+    swaps: dict[int, np.ndarray] | None = None,
 ) -> Result:
     """The result of a solve of ``model``.
 
@@ -47,5 +49,19 @@ def estimate_result(
         cam = capture.cameras[c]
         frames = np.arange(cam.num_frames) if all_frames else model.camera_frames(c)
         if len(frames):
-            result.cameras[cam.name] = CameraTrack(cam.timestamps[frames], estimate.cameras[c][frames])
+            codes = None if swaps is None or c not in swaps else np.maximum(swaps[c][frames], 0).astype(np.int8)
+            result.cameras[cam.name] = CameraTrack(cam.timestamps[frames], estimate.cameras[c][frames], codes)
     return result
+
+
+def swap_notes(names: list[str], swaps: dict[int, np.ndarray]) -> list[str]:
+    """One note per camera whose detections the solve relabelled: how many of its frames, of which kind."""
+    notes = []
+    for c, codes in sorted(swaps.items()):
+        solved = codes >= 0
+        counts = {kind: int(np.sum(codes == h)) for h, kind in enumerate(SWAP_KINDS) if h}
+        total = sum(counts.values())
+        if total:
+            kinds = ", ".join(f"{n} {kind}" for kind, n in counts.items() if n)
+            notes.append(f"camera {names[c]}: left/right labels undone in {total} of {int(solved.sum())} frames ({kinds})")
+    return notes

@@ -51,7 +51,7 @@ from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import capture_state_model
-from mocapgraph.pipelines.results import estimate_result
+from mocapgraph.pipelines.results import estimate_result, swap_notes
 from mocapgraph.priors.motion_windows import WINDOW
 
 log = logging.getLogger(__name__)
@@ -311,9 +311,13 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     )  # fmt: skip
     estimate = bg.read(solved_final.values, stitched)
     estimate.log = list(solved_final.log)
+    swaps = bg.relabelled(estimate)
+    notes += swap_notes(model.names, swaps)
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
-    result = estimate_result("smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(options), capture_label, cameras=placed_cameras)
+    result = estimate_result(
+        "smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(options), capture_label, cameras=placed_cameras, swaps=swaps
+    )
     if options.covariances:
         result.covariances.update(bg.covariances(graph, solved_final.values, estimate))
     result.parameters.update(

@@ -18,6 +18,7 @@ import numpy as np
 
 from mocapgraph import __version__
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.data_tools.io.capture import Rt_from_world_T_camera, world_T_camera_from_Rt
 from mocapgraph.data_tools.io.files import (
@@ -46,10 +47,13 @@ class ResultError(MocapgraphError):
 
 @dataclass
 class CameraTrack:
-    """One camera's estimated poses: ``timestamps (T_c,)`` and ``world_T_camera (T_c, 4, 4)``."""
+    """One camera's estimated poses: ``timestamps (T_c,)`` and ``world_T_camera (T_c, 4, 4)``;
+    ``swaps (T_c,)`` int8, where the solve relabelled the camera's detections: the index into
+    :data:`mocapgraph.body.labelling.SWAP_KINDS` (0 as detected), or None."""
 
     timestamps: np.ndarray
     world_T_camera: np.ndarray
+    swaps: np.ndarray | None = None
 
 
 @dataclass
@@ -166,7 +170,12 @@ def load_result(path: str | Path) -> Result:
             R = check_array(arrays[f"{name}.R"], at(f"{name}.R"), (len(cts), 3, 3))
             check_rotations(R, at(f"{name}.R"))
             t = check_array(arrays[f"{name}.t"], at(f"{name}.t"), (len(cts), 3))
-            result.cameras[name] = CameraTrack(cts, world_T_camera_from_Rt(R, t))
+            swaps = None
+            if f"{name}.swaps" in arrays:
+                swaps = check_array(arrays[f"{name}.swaps"], at(f"{name}.swaps"), (len(cts),)).astype(np.int8)
+                if np.any((swaps < 0) | (swaps >= len(SWAP_KINDS))):
+                    raise at(f"{name}.swaps").fail(f"codes must index {', '.join(SWAP_KINDS)} (0 to {len(SWAP_KINDS) - 1})")
+            result.cameras[name] = CameraTrack(cts, world_T_camera_from_Rt(R, t), swaps)
     if "covariances" in doc:
         rel = require_key(doc, "covariances", where, str)
         for name, arr in files.npz(rel, where("covariances"), ()).items():
@@ -226,6 +235,8 @@ def _write_into(result: Result, root: Path) -> None:
         for name, track in result.cameras.items():
             arrays[f"{name}.timestamps"] = track.timestamps
             arrays[f"{name}.R"], arrays[f"{name}.t"] = Rt_from_world_T_camera(np.asarray(track.world_T_camera))
+            if track.swaps is not None:
+                arrays[f"{name}.swaps"] = np.asarray(track.swaps, dtype=np.int8)
         np.savez_compressed(root / "cameras.npz", **arrays)
         doc["cameras"] = "cameras.npz"
     for key, arrays in (("covariances", result.covariances), ("flags", result.flags)):
