@@ -11,14 +11,21 @@ def cmd_synth(args) -> None:
     from mocapgraph.data_tools.sim.synthetic import synthesize
 
     refuse_existing(args.out, args.overwrite)
-    capture = synthesize(args.preset, seed=args.seed, duration_s=args.duration_s, motion=args.motion, detectors=args.detectors)
+    capture = synthesize(
+        args.preset, seed=args.seed, duration_s=args.duration_s, motion=args.motion, detectors=args.detectors,
+        detector_faults=args.detector_faults,
+    )  # fmt: skip
     path = write_capture(capture, args.out, overwrite=args.overwrite)
     frames = sum(cam.num_frames for cam in capture.cameras)
+    swapped = sum(int((codes != 0).sum()) for by_det in capture.ground_truth.swaps.values() for codes in by_det.values())
+    detections = sum(cam.num_frames * len(cam.detectors) for cam in capture.cameras)
     print(f"synthesised {capture.name}: {len(capture.cameras)} cameras, {frames} frames, motion: {capture.metadata['motion']}")
+    print(f"detector faults: {args.detector_faults}; left/right swapped in {swapped} of {detections} camera-detector frames")
     print(f"wrote {path}")
 
 
 def add_parsers(subparsers) -> None:
+    from mocapgraph.data_tools.sim.detectors import FAULT_LEVELS
     from mocapgraph.data_tools.sim.scenarios import PRESETS
     from mocapgraph.data_tools.sim.synthetic import synthesize
 
@@ -29,6 +36,8 @@ def add_parsers(subparsers) -> None:
         synth, synthesize,
         {"seed": "seed of everything random", "duration_s": ("seconds", {"flag": "--duration"}),
          "motion": "walk, turn, arms, zigzag_then_act, stand, or a CMU take (cmu:cmu_02_01.npz); default per preset",
-         "detectors": ("comma-separated detector presets; default per preset", {"type": detector_list})},
+         "detectors": ("comma-separated detector presets; default per preset", {"type": detector_list}),
+         "detector_faults": ("sustained left/right swaps, far-side guesses, keypoint offsets, size bias "
+                             "(docs/detector_faults.md)", {"choices": FAULT_LEVELS})},
     )  # fmt: skip
     synth.set_defaults(func=cmd_synth)

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.data_tools.io.files import (
     ArrayFiles,
     Where,
@@ -118,6 +119,10 @@ class GroundTruth:
         shape: ``(S,)``.
         joints: ``(T, 22, 3)`` world, metres.
         cameras: per camera name, ``(T_c, 4, 4)`` world_T_camera at that camera's timestamps.
+        swaps: per camera name and detector name, ``(T_c,)`` int8 code of the left/right swap in
+            that detector's keypoints at each frame (``SWAP_KINDS.index(kind)`` of
+            :mod:`mocapgraph.body.labelling`; 0 = labels as true); empty when unknown (optional,
+            captures written before it existed load without it).
     """
 
     body_model: str
@@ -127,6 +132,7 @@ class GroundTruth:
     shape: np.ndarray
     joints: np.ndarray
     cameras: dict[str, np.ndarray] = field(default_factory=dict)
+    swaps: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass
@@ -446,7 +452,33 @@ def _read_ground_truth(
         unknown = {k.split(".")[0] for k in arrays} - {c.name for c in cameras}
         if unknown:
             raise where.at(crel).fail(f"poses for unknown cameras {sorted(unknown)}")
-    return GroundTruth(body_model, ts, root, pose, shape, joints, cams)
+    swaps = _read_swaps(doc, where, files, cameras, kept) if "swaps" in doc else {}
+    return GroundTruth(body_model, ts, root, pose, shape, joints, cams, swaps)
+
+
+def _read_swaps(doc, where: Where, files: ArrayFiles, cameras: list[Camera], kept: dict[str, np.ndarray]) -> dict:
+    """The ground truth's swap codes, ``{camera: {detector: (T_c,) int8}}``, keyed
+    ``<camera>.<detector>`` in their file; a camera's codes keep the frames ``kept[name]``."""
+    rel = require_key(doc, "swaps", where, str)
+    arrays = files.npz(rel, where("swaps"), ())
+    expected = {f"{cam.name}.{det}": cam for cam in cameras for det in cam.detectors}
+    unknown = sorted(set(arrays) - set(expected))
+    if unknown:
+        raise where.at(rel).fail(f"swap codes for unknown camera detectors {unknown}")
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for key, cam in expected.items():
+        if key not in arrays:
+            continue
+        keep = kept.get(cam.name)
+        frames = cam.num_frames if keep is None else len(keep)
+        raw = np.asarray(arrays[key])
+        if raw.shape != (frames,) or not np.issubdtype(raw.dtype, np.integer):
+            raise where.at(rel, key).fail(f"expected ({frames},) integers, got {raw.dtype} {raw.shape}")
+        if np.any((raw < 0) | (raw >= len(SWAP_KINDS))):
+            raise where.at(rel, key).fail(f"swap codes must lie in 0..{len(SWAP_KINDS) - 1} ({', '.join(SWAP_KINDS)})")
+        codes = raw.astype(np.int8)
+        out.setdefault(cam.name, {})[key[len(cam.name) + 1 :]] = codes if keep is None else codes[keep]
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -528,4 +560,8 @@ def _write_into(capture: Capture, root: Path) -> None:
                 arrays[f"{name}.R"], arrays[f"{name}.t"] = Rt_from_world_T_camera(np.asarray(poses, dtype=float))
             np.savez_compressed(root / "ground_truth" / "cameras.npz", **arrays)
             doc["ground_truth"]["cameras"] = "ground_truth/cameras.npz"
+        if gt.swaps:
+            codes = {f"{cam}.{det}": np.asarray(c, dtype=np.int8) for cam, by_det in gt.swaps.items() for det, c in by_det.items()}
+            np.savez_compressed(root / "ground_truth" / "swaps.npz", **codes)
+            doc["ground_truth"]["swaps"] = "ground_truth/swaps.npz"
     write_manifest(root / MANIFEST, "capture", "docs/capture-format.md", doc)

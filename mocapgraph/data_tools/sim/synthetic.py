@@ -15,7 +15,7 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.body.model import BodyModel
 from mocapgraph.data_tools.io.capture import Camera, Capture, GroundTruth
-from mocapgraph.data_tools.sim.detectors import DETECTOR_PRESETS, simulate_detections
+from mocapgraph.data_tools.sim.detectors import DETECTOR_PRESETS, FAULT_LEVELS, simulate_detections_with_info
 from mocapgraph.data_tools.sim.motion_sources import PROCEDURAL_KINDS, Motion, cmu_motion, procedural_motion
 from mocapgraph.data_tools.sim.scenarios import PRESETS, scenario_cameras
 from mocapgraph.errors import MocapgraphError
@@ -66,6 +66,7 @@ def synthesize(
     motion: str | None = None,
     detectors: tuple[str, ...] | None = None,
     noise_scale: float = 1.0,
+    detector_faults: str = "realistic",
 ) -> Capture:
     """A synthetic capture of ``preset`` (``aircap``, ``airpose``, ``rich``, ``phones``).
 
@@ -73,6 +74,10 @@ def synthesize(
     preset (:data:`PRESET_MOTION`). ``detectors``: names in ``DETECTOR_PRESETS``; default per preset.
     ``noise_scale`` multiplies every detector's keypoint noise (its fraction of the person's
     height and its pixel floor), e.g. 3 for the heavy noise the learned priors are measured on.
+    ``detector_faults``: ``none``, ``realistic`` or ``heavy`` (:data:`FAULT_LEVELS`): sustained
+    and view-dependent left/right swaps, far-side guesses, keypoint-definition offsets and a size
+    bias per detector (``docs/detector_faults.md``); the swaps applied are recorded per camera and
+    detector in ``ground_truth.swaps``.
     """
     if preset not in PRESETS:
         raise MocapgraphError(f"unknown scenario preset {preset!r}; presets: {', '.join(PRESETS)}")
@@ -80,6 +85,8 @@ def synthesize(
         raise MocapgraphError(f"duration must be positive, got {duration_s}")
     if not (np.isfinite(noise_scale) and noise_scale >= 0):
         raise MocapgraphError(f"noise_scale must be a finite number >= 0, got {noise_scale}")
+    if detector_faults not in FAULT_LEVELS:
+        raise MocapgraphError(f"unknown detector fault level {detector_faults!r}; levels: {', '.join(FAULT_LEVELS)}")
     detectors = tuple(detectors or PRESET_DETECTORS[preset])
     unknown = [d for d in detectors if d not in DETECTOR_PRESETS]
     if unknown:
@@ -89,10 +96,10 @@ def synthesize(
     sims = scenario_cameras(preset, subject.timestamps, subject.root[:, :3, 3], seed=seed, duration_s=duration_s)
     streams = np.random.SeedSequence([seed, 0x5EED]).spawn(len(sims) * len(detectors))
 
-    cameras, truth_cameras = [], {}
+    cameras, truth_cameras, truth_swaps = [], {}, {}
     models = {
         name: replace(
-            DETECTOR_PRESETS[name],
+            DETECTOR_PRESETS[name].at_fault_level(detector_faults),
             noise_frac_of_height=DETECTOR_PRESETS[name].noise_frac_of_height * noise_scale,
             noise_floor_px=DETECTOR_PRESETS[name].noise_floor_px * noise_scale,
         )
@@ -100,15 +107,15 @@ def synthesize(
     }
     for c, sim in enumerate(progress_bar(sims, desc=f"synth {preset}", unit="camera")):
         root, pose = subject.sample(sim.timestamps)
-        found = {}
+        found, swaps = {}, {}
         for d, name in enumerate(detectors):
             rng = np.random.default_rng(streams[c * len(detectors) + d])
-            det = simulate_detections(
+            det, info = simulate_detections_with_info(
                 body, subject.shape, root, pose, sim.world_T_camera, sim.K, sim.distortion, sim.image_size,
-                models[name], rng,
+                models[name], rng, timestamps=sim.timestamps,
             )  # fmt: skip
             det.name = name
-            found[name] = det
+            found[name], swaps[name] = det, info.swaps
         cameras.append(
             Camera(
                 name=sim.name, K=sim.K, distortion=sim.distortion, image_size=sim.image_size, moving=sim.moving,
@@ -117,12 +124,13 @@ def synthesize(
             )  # fmt: skip
         )
         truth_cameras[sim.name] = sim.world_T_camera
+        truth_swaps[sim.name] = swaps
 
     # Ground truth at every camera frame time, so any pipeline's timestamps match exactly.
     times = np.unique(np.concatenate([cam.timestamps for cam in cameras]))
     root, pose = subject.sample(times)
     joints = body.forward(subject.shape, root, pose).joints
-    truth = GroundTruth(body.name, times, root, pose, subject.shape.copy(), joints, truth_cameras)
+    truth = GroundTruth(body.name, times, root, pose, subject.shape.copy(), joints, truth_cameras, truth_swaps)
     return Capture(
         name=f"{preset}-seed{seed}",
         cameras=cameras,
@@ -136,5 +144,6 @@ def synthesize(
             "motion": subject.source,
             "detectors": list(detectors),
             "noise_scale": float(noise_scale),
+            "detector_faults": detector_faults,
         },
     )
