@@ -11,12 +11,16 @@ import pytest
 from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.cli.main import main
 from mocapgraph.data_tools.io.capture import CaptureError, load_capture
-from mocapgraph.data_tools.io.importers import (
-    CameraCalibration,
-    assemble_capture,
-    read_calibration,
-    read_openpose_json_folder,
-)
+from mocapgraph.data_tools.io.calibration import CameraCalibration, read_calibration
+from mocapgraph.data_tools.io.importers import assemble_capture
+from mocapgraph.data_tools.io.keypoint_files import OPENPOSE_SUFFIX, read_json_keypoints
+
+
+def read_openpose_json_folder(folder, person="largest"):
+    """OpenPose's own output: BODY_25 unless told otherwise."""
+    kp, boxes, fmt = read_json_keypoints(folder, "openpose25", person, suffix=OPENPOSE_SUFFIX)
+    assert fmt == "openpose25"
+    return kp, boxes
 
 K1 = np.array([[1210.5, 0.0, 962.25], [0.0, 1205.0, 541.5], [0.0, 0.0, 1.0]])
 DIST1 = np.array([-0.11, 0.052, 0.0007, -0.0012, 0.003])
@@ -83,8 +87,9 @@ def test_openpose_folder_natural_order_largest_person_and_missing(tmp_path):
     "content, words",
     [
         ("{not json", ["not valid JSON"]),
-        (json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 74}]}), ["people[0].pose_keypoints_2d", "expected 75", "74"]),
-        (json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 54}]}), ["COCO-18"]),
+        (json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 74}]}), ["people[0].pose_keypoints_2d", "74 values", "multiple of 3"]),
+        (json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 54}]}), ["expected 75", "got 54", "COCO-18"]),
+        (json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 78}]}), ["expected 75", "got 78", "26 points is halpe26"]),
         (json.dumps({"people": [{"face_keypoints_2d": []}]}), ["people[0].pose_keypoints_2d", "missing"]),
         (json.dumps({"version": 1.3}), ["people"]),
         (json.dumps({"people": [{"pose_keypoints_2d": ["a"] * 75}]}), ["not all numbers"]),

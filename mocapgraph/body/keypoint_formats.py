@@ -235,6 +235,10 @@ def _known() -> str:
     return ", ".join(f"{f.name} ({f.num_points} points)" for f in FORMATS.values())
 
 
+UNSUPPORTED_POINT_COUNTS = {18: "OpenPose's COCO-18 model, which is not supported: run OpenPose with BODY_25"}
+"""Point counts of known layouts that are not in the registry, with what to do instead."""
+
+
 def formats_with_points(num_points: int) -> list[str]:
     """Names of the registered formats with ``num_points`` points, in registry order."""
     return [f.name for f in FORMATS.values() if f.num_points == num_points]
@@ -247,7 +251,7 @@ def format_for_points(num_points: int, source: str = "keypoints") -> KeypointFor
     if len(names) == 1:
         return FORMATS[names[0]]
     if not names:
-        hint = " (18 points is OpenPose's COCO-18 model, which is not supported: use BODY_25)" if num_points == 18 else ""
+        hint = f" ({num_points} points is {UNSUPPORTED_POINT_COUNTS[num_points]})" if num_points in UNSUPPORTED_POINT_COUNTS else ""
         raise MocapgraphError(f"{source}: {num_points} points per person match no known format{hint}; known formats: {_known()}")
     raise MocapgraphError(f"{source}: {num_points} points per person could be {' or '.join(names)}; say which with --format")
 

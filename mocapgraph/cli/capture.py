@@ -44,9 +44,20 @@ def moving_from_args(args) -> dict[str, bool]:
 
 
 def calibration_from_args(args):
-    from mocapgraph.data_tools.io.importers import read_calibration
+    """The cameras of ``--calibration`` (None without one), without their poses under ``--intrinsics-only``."""
+    from mocapgraph.data_tools.io.calibration import read_calibration
 
-    return read_calibration(args.calibration, units=args.units) if args.calibration else None
+    if not args.calibration:
+        if args.intrinsics_only:
+            raise MocapgraphError("--intrinsics-only needs a calibration to take the intrinsics from (--calibration FILE)")
+        return None
+    return _keep_intrinsics(read_calibration(args.calibration, units=args.units), args)
+
+
+def _keep_intrinsics(cameras, args):
+    from mocapgraph.data_tools.io.calibration import intrinsics_only
+
+    return intrinsics_only(cameras) if args.intrinsics_only else cameras
 
 
 def print_summary(path: Path) -> None:
@@ -72,11 +83,16 @@ def add_capture_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", help="capture name (default: the directory name)")
     parser.add_argument(
         "--calibration", type=Path,
-        help="camera calibration: OpenCV YAML/XML/JSON, JSON or Pose2Sim/anipose TOML (docs/importing.md)",
+        help="camera calibration: OpenCV YAML/XML/JSON, JSON, Pose2Sim/anipose TOML or Qualisys .qca.txt (docs/importing.md)",
     )  # fmt: skip
     parser.add_argument(
-        "--units", choices=("m", "cm", "mm"), default="m",
-        help="length unit of the calibration's translations (default m; anipose uses its board's unit, often mm)",
+        "--units", choices=("m", "cm", "mm"),
+        help="length unit of the calibration's translations (default m; Qualisys files say mm themselves; "
+        "anipose uses its board's unit, often mm)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--intrinsics-only", action="store_true",
+        help="keep the calibration's intrinsics and distortion, drop its camera poses (the pipelines then calibrate them)",
     )  # fmt: skip
     parser.add_argument("--static", action="append", metavar="CAMERA", help="this camera does not move (repeatable)")
     parser.add_argument(
@@ -90,29 +106,105 @@ def add_capture_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="replace an existing capture at --out")
 
 
+def _person(text: str) -> str | int:
+    if text == "largest":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise MocapgraphError(f"--person must be 'largest' or an index, got {text!r}") from None
+
+
+def _rates(items: list[str] | None) -> tuple[float | None, dict[str, float]]:
+    """``--fps F`` and ``--fps CAMERA=F`` → (the rate of every camera or None, rate per named camera)."""
+    everyone, per_camera = None, {}
+    for item in items or []:
+        name, sep, value = item.rpartition("=")
+        try:
+            rate = float(value)
+        except ValueError:
+            raise MocapgraphError(f"--fps {item}: expected F or CAMERA=F with a number F") from None
+        if not (np.isfinite(rate) and rate > 0):
+            raise MocapgraphError(f"--fps {item}: the frame rate must be positive")
+        if sep:
+            per_camera[name] = rate
+        elif everyone is not None:
+            raise MocapgraphError("--fps F given twice; name the cameras (--fps CAMERA=F) to give them different rates")
+        else:
+            everyone = rate
+    return everyone, per_camera
+
+
+def _array_path(item: str) -> tuple[str, Path, str | None]:
+    """``[CAMERA=]FILE[:KEY]`` → (camera, file, key or None); the camera defaults to the file's stem."""
+    name, path = _named_path(item)
+    key = None
+    if not path.exists() and ":" in path.name:
+        base, _, key = str(path).rpartition(":")
+        path = Path(base)
+    return name or path.stem, path, key
+
+
 def cmd_import(args) -> None:
-    from mocapgraph.data_tools.io.importers import assemble_capture, read_openpose_json_folder
+    from mocapgraph.data_tools.io.importers import assemble_capture, video_info
+    from mocapgraph.data_tools.io.keypoint_files import AUTO, OPENPOSE_SUFFIX, read_json_keypoints, read_keypoint_array
 
     refuse_existing(args.out, args.overwrite)
-    person: str | int = args.person
-    if person != "largest":
-        try:
-            person = int(person)
-        except ValueError:
-            raise MocapgraphError(f"--person must be 'largest' or an index, got {args.person!r}") from None
-    keypoints = {}
+    person = _person(args.person)
+    keypoints: dict[str, tuple] = {}
+
+    def add(camera: str, entry: tuple, flag: str) -> None:
+        if camera in keypoints:
+            raise MocapgraphError(f"camera {camera!r} has keypoints twice (the second from {flag}); name them CAMERA=PATH")
+        keypoints[camera] = entry
+
+    project_rate = None
+    if args.pose2sim is not None:
+        from mocapgraph.data_tools.io.pose2sim import read_pose2sim_project
+
+        if args.openpose or args.keypoints or args.videos:
+            raise MocapgraphError("--pose2sim reads the keypoints and videos of its project; leave out --openpose, --keypoints and --videos")
+        project = read_pose2sim_project(args.pose2sim, args.format or AUTO, person, args.calibration, args.units)
+        for camera, (fmt, kp, boxes) in project.keypoints.items():
+            add(camera, ("pose2sim", fmt, kp, boxes), "--pose2sim")
+        videos, project_rate = project.videos, project.frame_rate
+        if args.intrinsics_only and project.calibration is None:
+            raise MocapgraphError(f"{project.root}: --intrinsics-only needs a calibration, and the project has none (calibration/)")
+        calibration = _keep_intrinsics(project.calibration, args) if project.calibration is not None else None
+        formats = sorted({entry[1] for entry in keypoints.values()})
+        print(
+            f"Pose2Sim project {project.root}: {len(keypoints)} cameras from {project.pose_folder.name}/ "
+            f"({', '.join(formats)}, from {project.format_source}); calibration: {project.calibration_path or 'none'}; "
+            f"videos: {len(videos)}"
+        )
+    else:
+        videos, calibration = videos_from_args(args.videos), calibration_from_args(args)
     for item in args.openpose or []:
         name, folder = _named_path(item)
-        name = name or folder.name
-        if name in keypoints:
-            raise MocapgraphError(f"two --openpose folders for camera {name!r}")
-        kp, boxes = read_openpose_json_folder(folder, person=person)
-        keypoints[name] = ("openpose", "openpose25", kp, boxes)
-    if not keypoints and not args.videos:
-        raise MocapgraphError("nothing to import: give --openpose CAMERA=FOLDER and/or --videos")
+        kp, boxes, fmt = read_json_keypoints(folder, args.format or "openpose25", person, suffix=OPENPOSE_SUFFIX)
+        add(name or folder.name, ("openpose", fmt, kp, boxes), "--openpose")
+    for item in args.keypoints or []:
+        name, path, key = _array_path(item)
+        kp, boxes, fmt = read_keypoint_array(path, args.format or AUTO, key)
+        add(name, ("keypoints", fmt, kp, boxes), "--keypoints")
+    if not keypoints and not videos:
+        raise MocapgraphError("nothing to import: give --pose2sim PROJECT, --openpose CAMERA=FOLDER, --keypoints CAMERA=FILE and/or --videos")
+
+    everyone, per_camera = _rates(args.fps)
+    cameras = list(videos) + [n for n in keypoints if n not in videos]
+    unknown = [n for n in per_camera if n not in cameras]
+    if unknown:
+        raise MocapgraphError(f"--fps names unknown camera(s) {', '.join(unknown)} (cameras: {', '.join(cameras)})")
+    rates = {}
+    for camera in cameras:
+        rates[camera] = per_camera.get(camera) or everyone or project_rate or (video_info(videos[camera])[1] if camera in videos else 0.0)
+        if not rates[camera]:
+            where = "its video does not state it" if camera in videos else "it has no video"
+            raise MocapgraphError(f"camera {camera}: frame rate unknown ({where}); pass --fps F or --fps {camera}=F")
     path = assemble_capture(
-        videos_from_args(args.videos), keypoints, calibration_from_args(args), args.fps, args.out, args.name,
+        videos, keypoints, calibration, rates, args.out, args.name,
         moving=moving_from_args(args), video_mode="copy" if args.copy_videos else "link", overwrite=args.overwrite,
+        require_equal_length=not args.allow_unequal_length,
     )  # fmt: skip
     print_summary(path)
 
@@ -120,20 +212,43 @@ def cmd_import(args) -> None:
 def _add_import_parser(subparsers) -> None:
     parser = command(
         subparsers, "import",
-        "make a capture from OpenPose JSON, videos and a calibration",
-        description="Write a capture from OpenPose --write_json folders (one per camera), videos and a "
-        "calibration file. Camera names must agree across them (docs/importing.md).",
+        "make a capture from a Pose2Sim project, OpenPose JSON, keypoint arrays, videos and a calibration",
+        description="Write a capture from a Pose2Sim project folder, or from OpenPose --write_json folders and "
+        "keypoint arrays (one per camera), videos and a calibration file. Camera names must agree across them "
+        "(docs/importing.md).",
     )
+    parser.add_argument(
+        "--pose2sim", type=Path, metavar="PROJECT",
+        help="a Pose2Sim project folder: pose/<camera>_json/*.json, calibration/ and videos/ (docs/importing.md)",
+    )  # fmt: skip
     parser.add_argument(
         "--openpose", action="append", metavar="CAMERA=FOLDER",
         help="a camera's OpenPose JSON folder (repeatable; a bare FOLDER names the camera after it)",
     )  # fmt: skip
     parser.add_argument(
+        "--keypoints", action="append", metavar="CAMERA=FILE",
+        help="a camera's (T, K, 3) keypoint array, x y confidence: FILE.npy, FILE.npz holding one array, or FILE.npz:KEY "
+        "(repeatable; a bare FILE names the camera after its stem)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--format",
+        help="keypoint format of the files: coco17, openpose25 (BODY_25), openpose25b (BODY_25B), halpe26, blazepose33 "
+        "(default: --openpose openpose25; --pose2sim the project's pose_model; otherwise told from the points per person)",
+    )  # fmt: skip
+    parser.add_argument(
         "--person", default="largest",
-        help="which person to keep per frame: 'largest' box (default) or an index into OpenPose's people list",
+        help="which person to keep per frame: 'largest' box (default) or an index into each file's people list",
     )  # fmt: skip
     parser.add_argument("--videos", nargs="+", metavar="VIDEO", help="videos: PATH (camera = file stem) or CAMERA=PATH")
-    parser.add_argument("--fps", type=float, required=True, help="frames per second; timestamps are frame / fps")
+    parser.add_argument(
+        "--fps", action="append", metavar="[CAMERA=]F",
+        help="frames per second, of every camera or of one (repeatable); timestamps are frame / fps. Default: the "
+        "Pose2Sim project's frame_rate, else each camera's video",
+    )  # fmt: skip
+    parser.add_argument(
+        "--allow-unequal-length", action="store_true",
+        help="accept cameras that cover different lengths of time (default: refused, naming each camera's frames and rate)",
+    )  # fmt: skip
     add_capture_flags(parser)
     parser.set_defaults(func=cmd_import)
 
