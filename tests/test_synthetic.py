@@ -95,3 +95,23 @@ def test_synth_baseline_eval_from_the_command_line(tmp_path, capsys):
     metrics = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert metrics["pipeline"] == "baseline" and metrics["alignment"].startswith("none")
     assert 0.003 < metrics["mpjpe_keypoints_m"] < 0.03
+
+
+def test_synth_detector_faults_flag(tmp_path, capsys):
+    """``--detector-faults``: the capture records the level and the swaps it made; ``none`` makes none."""
+    counts = {}
+    for level in ("none", "heavy"):
+        out = tmp_path / level
+        assert main(["synth", "rich", "--out", str(out), "--duration", "2", "--seed", "4", "--detector-faults", level]) == 0
+        printed = capsys.readouterr().out
+        capture = load_capture(out)
+        assert capture.metadata["detector_faults"] == level
+        codes = np.concatenate([c for by_det in capture.ground_truth.swaps.values() for c in by_det.values()])
+        assert len(codes) == sum(cam.num_frames for cam in capture.cameras)
+        counts[level] = int(np.count_nonzero(codes))
+        assert f"detector faults: {level}; left/right swapped in {counts[level]} of {len(codes)} camera-detector frames" in printed
+    assert counts["none"] == 0 and counts["heavy"] > 0
+    with pytest.raises(SystemExit):
+        main(["synth", "rich", "--out", str(tmp_path / "x"), "--detector-faults", "wild"])
+    with pytest.raises(MocapgraphError, match="unknown detector fault level 'wild'"):
+        synthesize("rich", detector_faults="wild")

@@ -3,6 +3,12 @@
 :func:`simulate_detections` poses the body, projects its keypoints through an OpenCV camera
 (:func:`project_points`, the one projection used by everything here) and applies, in this order:
 
+0. **Definition** (``faults``, :class:`DetectorFaults`). A detector's hip, shoulder, knee or
+   ankle is not the body model's point: each format point is moved by a fixed offset in the frame
+   of the segment that carries it (``keypoint_offsets_m``, per format in
+   :data:`KEYPOINT_DEFINITION_OFFSETS_M`), so its image effect changes with the viewing
+   direction; then every point is scaled about the pelvis by ``size_bias``. Everything below
+   acts on these points; ``DetectionInfo.body_pixels`` keeps the body's own projections.
 1. **Frame.** A point is *in frame* when it lies in front of the camera (depth > ``MIN_DEPTH_M``),
    inside the image ``0 <= u < w, 0 <= v < h`` and inside the radius where the radial
    distortion is still monotonic (beyond it OpenCV's polynomial folds far points back into the
@@ -19,19 +25,23 @@
    point and frame only, so that the point lies ``occlusion_clearance_m`` outside it: a point
    never hides behind the bone it sits on (the wrist on its forearm, the hip inside the pelvis),
    yet the head still hides the nose from behind. A blended format point (OpenPose's neck and
-   mid-hip, inside the body) is occluded only when every point it blends is. Occluded points are dropped with probability
-   ``occluded_drop_prob``, otherwise their noise is multiplied by ``occluded_noise_mult`` and
-   their confidence by ``occluded_conf_mult``.
+   mid-hip, inside the body) is occluded only when every point it blends is. With probability
+   ``faults.guess_prob`` an occluded point is *guessed*: placed at
+   ``(1 - w) X + w M + N(0, guess_error_m²)`` (``M`` its left/right partner mirrored in the
+   pelvis's sagittal plane, ``w = guess_mirror_weight``) and reported like a visible point, with a high
+   confidence uniform in ``guess_conf_range``, as detectors trained to a "best guess" do. Other
+   occluded points are dropped with probability ``occluded_drop_prob``, otherwise their noise is
+   multiplied by ``occluded_noise_mult`` and their confidence by ``occluded_conf_mult``.
 4. **Noise.** The person's image height is ``h = f_y · stature / depth(pelvis)``, where stature is
    the heel-to-eye extent of the body's rest keypoints (1.50 m for the default Anny body). Each
    point gets 2D noise of standard deviation per axis
    ``σ = sqrt((noise_frac_of_height · h)² + noise_floor_px²) · difficulty[part]``
-   (× ``occluded_noise_mult`` if occluded); Gaussian, or a 2D Student-t with ``noise_tail_dof``
+   (× ``occluded_noise_mult`` if occluded and not guessed); Gaussian, or a 2D Student-t with ``noise_tail_dof``
    degrees of freedom scaled to the same σ; optionally AR(1)-correlated across frames
    (``noise_frame_correlation``), as real detectors jitter smoothly.
 5. **Confidence** tracks the actual pixel error ``e`` of the point:
    ``c = clip(conf_max · exp(-e² / (2 (conf_error_frac_of_height · h)²)) + N(0, conf_noise_std²), 0, 1)``,
-   times ``occluded_conf_mult`` when occluded. Points with ``c <= conf_threshold`` are NaN.
+   times ``occluded_conf_mult`` when occluded and not guessed. Points with ``c <= conf_threshold`` are NaN.
 6. **Outliers.** With probability ``outlier_prob`` a point in frame is placed elsewhere, with a
    confidence uniform in ``outlier_conf_range``: on its "shadow" (the point mirrored in the
    ground plane ``z = ground_z``, projected; share ``outlier_shadow_fraction``), on another
@@ -40,10 +50,15 @@
 7. **Dropout.** Each point in frame is missed with probability ``keypoint_miss_prob``; within
    ``border_dropout_px`` of the image border with probability ``border_drop_prob``; a point whose
    noisy position leaves the image is NaN.
-8. **Swaps.** Per frame, the whole body's left/right labels are swapped with probability
-   ``body_swap_prob`` (every ``left_right_pairs`` pair exchanges its rows: position and
-   confidence), and, independently, one limb pair (legs with share ``limb_swap_leg_fraction``,
-   else arms) with probability ``limb_swap_prob``. A swapped point keeps the confidence it had.
+8. **Swaps.** Runs of swapped left/right labels, whole body or one pair of limbs, start at a
+   rate per second that depends on the viewing direction (from the side and from behind more
+   than from the front) and last a drawn duration (``faults``; :class:`DetectorFaults` gives the
+   chain): frame-rate independent. Away from runs (not in one, nor next to one), single frames
+   are swapped: the whole body with probability ``body_swap_prob``, else one limb pair with
+   probability ``limb_swap_prob``. A limb swap swaps the legs with share
+   ``limb_swap_leg_fraction``, else the arms. One swap at most per frame, recorded as its code
+   ``SWAP_KINDS.index(kind)`` in ``DetectionInfo.swaps``; the rows (position and confidence)
+   move by :func:`~mocapgraph.body.labelling.swap_permutation`.
 9. **Box.** The tight box around the exact projections of the in-frame points and the final
    detections, each side widened by ``max(0, box_margin + N(0, box_jitter²)) · h`` (so it always
    holds every detection), clipped to the image; score ``clip(N(box_score_mean,
@@ -127,10 +142,13 @@ KEYPOINT_DEFINITION_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] 
     # COCO-17 annotations (HRNet, AlphaPose): Needham et al. 2021 found their 3D hips and knees
     # 30-50 mm and ankles 1-15 mm from marker-based joint centres; directions assumed.
     "coco17": {"shoulder": (0.010, 0.030, 0.0), "hip": (0.030, 0.0, 0.020), "knee": (0.0, 0.0, 0.020), "ankle": (0.010, 0.0, 0.0)},
-    # OpenPose BODY_25 and BlazePose hips: Pose2Sim's hip marker for both, 22 mm lateral, 15 mm
+    # OpenPose BODY_25, BlazePose and HALPE-26 hips: Pose2Sim's one hip marker for the three, 22 mm lateral, 15 mm
     # inferior and 7 mm anterior of its model's hip joint centre (Markers_*.xml).
     "openpose25": {"shoulder": (0.0, 0.030, 0.0), "hip": (0.022, -0.015, 0.007), "knee": (0.0, 0.0, 0.025), "ankle": (0.010, 0.0, -0.005)},
     "blazepose33": {"shoulder": (0.015, 0.020, -0.010), "hip": (0.022, -0.015, 0.007), "knee": (0.0, 0.0, 0.020), "ankle": (0.012, 0.0, 0.0)},
+    "halpe26": {"shoulder": (0.010, 0.030, 0.0), "hip": (0.022, -0.015, 0.007), "knee": (0.0, 0.0, 0.020), "ankle": (0.010, 0.0, 0.0)},
+    # BODY_25B is trained on COCO's annotations (and its foot points)
+    "openpose25b": {"shoulder": (0.010, 0.030, 0.0), "hip": (0.030, 0.0, 0.020), "knee": (0.0, 0.0, 0.020), "ankle": (0.010, 0.0, 0.0)},
 }  # fmt: skip
 """Where each detector format puts a point relative to the body model's point of the same name:
 ``(lateral, up, forward)`` metres of the left point in the frame of the segment carrying it
@@ -170,7 +188,8 @@ class DetectorFaults:
             confidence instead of the occluded treatment (noisier, less confident, maybe dropped).
         guess_conf_range: (low, high) uniform confidence of a guessed point.
         guess_mirror_weight: the guess lies this far (0..1) from the true point towards the
-            point's left/right partner mirrored in the body's sagittal plane (a symmetric pose).
+            point's left/right partner mirrored in the pelvis's sagittal plane (as if the pose
+            were symmetric).
         guess_error_m: std per axis of a 3D Gaussian error added to the guess, metres.
         keypoint_offsets_m: by body part (``hip``, ``shoulder``, ...), ``(lateral, up, forward)``
             metres from the body model's point to where the detector puts it, for the left point
@@ -676,6 +695,8 @@ def _offset_points(points, fmt, rotations, faults: DetectorFaults) -> np.ndarray
         if part not in faults.keypoint_offsets_m:
             continue
         side = next((s for s in ("left", "right") if name.startswith(s + "_") or name.endswith("_" + s)), "")
+        if not side and part not in UNSIDED_PARTS:  # e.g. HALPE's mid-hip "hip": not the sided hips' offset
+            continue
         lateral, up, forward = faults.keypoint_offsets_m[part]
         local = np.array([-lateral if side == "right" else lateral, up, forward])
         joint = JOINT_NAMES.index(OFFSET_SEGMENTS[part].format(side=side))
@@ -829,9 +850,9 @@ def simulate_detections_with_info(
 
     # --- far side guessed: towards the partner point mirrored in the sagittal plane
     guessed = occluded & (u_guess < faults.guess_prob)
-    left = body_axes(posed.keypoints)[:, None, :, 0]  # (T, 1, 3): the sagittal plane's normal
+    left = posed.rotations[:, None, 0, :, 0]  # (T, 1, 3): the pelvis's left axis, normal of its sagittal plane
     partner = X[:, swap_permutation(fmt.names, "body")]
-    mirrored_partner = partner - 2 * np.sum((partner - _mid_hip(posed.keypoints)[:, None]) * left, axis=-1, keepdims=True) * left
+    mirrored_partner = partner - 2 * np.sum((partner - pelvis) * left, axis=-1, keepdims=True) * left
     w = faults.guess_mirror_weight
     guess = (1 - w) * X + w * mirrored_partner + faults.guess_error_m * g_guess
     guess_px, _ = project_points(guess, cams, K, distortion)
