@@ -10,10 +10,11 @@ import pytest
 
 from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.cli.main import main
-from mocapgraph.data_tools.io.capture import CaptureError, load_capture
 from mocapgraph.data_tools.io.calibration import CameraCalibration, read_calibration
+from mocapgraph.data_tools.io.capture import CaptureError, load_capture
 from mocapgraph.data_tools.io.importers import assemble_capture
 from mocapgraph.data_tools.io.keypoint_files import OPENPOSE_SUFFIX, read_json_keypoints
+from mocapgraph.errors import MocapgraphError
 
 
 def read_openpose_json_folder(folder, person="largest"):
@@ -410,6 +411,15 @@ def test_assemble_capture_video_only_counts_frames_and_copies(tmp_path):
     assert (out / "cameras/solo/video.avi").stat().st_ino != video.stat().st_ino
 
 
+def test_a_symlinked_video_is_linked_to_its_file(tmp_path):
+    video = write_video(tmp_path / "real.avi", 3)
+    (tmp_path / "links").mkdir()
+    (tmp_path / "links" / "cam.avi").symlink_to(video)
+    out = assemble_capture([tmp_path / "links" / "cam.avi"], {}, None, 25.0, tmp_path / "c")
+    placed = out / load_capture(out).cameras[0].video
+    assert not placed.is_symlink() and placed.stat().st_ino == video.stat().st_ino
+
+
 # ---------------------------------------------------------------------------------------------
 # The `capture import` command
 
@@ -449,3 +459,26 @@ def test_capture_import_command(tmp_path, capsys):
     assert code == 2 and "cam09" in message
     code, message = run_cli(["capture", "import", "--fps", "50", "--out", str(tmp_path / "cap")], capsys)
     assert code == 2 and "already exists" in message
+
+
+def test_shared_capture_flags_give_intrinsics_only(tmp_path):
+    """``detect`` and ``capture import`` read the calibration through the shared flags."""
+    import argparse
+
+    from mocapgraph.cli.capture import add_capture_flags, calibration_from_args
+
+    parser = argparse.ArgumentParser()
+    add_capture_flags(parser)
+    (tmp_path / "c.toml").write_text(POSE2SIM)
+    argv = ["--out", str(tmp_path / "x"), "--calibration", str(tmp_path / "c.toml")]
+    full = calibration_from_args(parser.parse_args(argv))
+    lens = calibration_from_args(parser.parse_args(argv + ["--intrinsics-only"]))
+    assert [c.name for c in lens] == ["cam01", "cam02"] and all(c.world_T_camera is None for c in lens)
+    assert all(c.world_T_camera is not None for c in full)
+    for a, b in zip(full, lens):
+        np.testing.assert_array_equal(a.K, b.K)
+        np.testing.assert_array_equal(a.distortion, b.distortion)
+        assert a.image_size == b.image_size
+    with pytest.raises(MocapgraphError, match="--intrinsics-only needs a calibration"):
+        calibration_from_args(parser.parse_args(["--out", "x", "--intrinsics-only"]))
+    assert calibration_from_args(parser.parse_args(["--out", "x"])) is None

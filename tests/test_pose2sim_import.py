@@ -236,13 +236,14 @@ def qualisys_for(scene) -> str:
 def test_missing_cameras_either_way(tmp_path, scene, capsys):
     make_project(tmp_path / "a", scene, cameras=CAMERAS[:2])  # the calibration has cam3 too
     code, message = run_cli(["capture", "import", "--pose2sim", str(tmp_path / "a"), "--fps", "30", "--out", str(tmp_path / "c")], capsys)
-    assert code == 2 and "missing cameras: the calibration" in message and "has cam3, which have no keypoint folder" in message
-    assert "(it has cam1_json, cam2_json)" in message
+    assert code == 2 and "missing cameras: the calibration" in message and "has cameras without a keypoint folder in" in message
+    assert "pose: cam3 (the keypoint folders are cam1_json, cam2_json)" in message
 
     make_project(tmp_path / "b", scene)
     write_people(tmp_path / "b" / "pose" / "cam9_json", "cam9", projected(scene, "cam1", "halpe26"))
     code, message = run_cli(["capture", "import", "--pose2sim", str(tmp_path / "b"), "--fps", "30", "--out", str(tmp_path / "c")], capsys)
-    assert code == 2 and "keypoint folders cam9_json in" in message and "have no camera in the calibration" in message
+    assert code == 2 and "missing cameras: keypoint folders in" in message and "without a camera in the calibration" in message
+    assert "Calib_scene.toml: cam9_json (the calibration has cam1, cam2, cam3)" in message
     assert not (tmp_path / "c").exists()
 
 

@@ -82,8 +82,10 @@ def _place_video(source: Path, target: Path, mode: str) -> None:
     """Hard-link ``source`` to ``target`` (``mode="link"``, copying when linking is impossible) or copy it.
 
     Symbolic links are not used: the capture loader refuses paths that lead outside the capture.
+    A ``source`` that is itself a symbolic link is followed (a hard link to the link would be one).
     """
     target.parent.mkdir(parents=True, exist_ok=True)
+    source = source.resolve()
     if mode == "link":
         try:
             os.link(source, target)

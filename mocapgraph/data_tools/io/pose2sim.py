@@ -184,13 +184,13 @@ def read_pose2sim_project(
         extra = [n for n in folders if n not in calibrated]
         if missing:
             raise CaptureError(
-                f"{root}: missing cameras: the calibration {calib_path} has {_names(missing)}, which have no keypoint folder in "
-                f"{pose_folder} (it has {_names(p.name for p in folders.values())})"
+                f"{root}: missing cameras: the calibration {calib_path} has cameras without a keypoint folder in "
+                f"{pose_folder}: {_names(missing)} (the keypoint folders are {_names(p.name for p in folders.values())})"
             )
         if extra:
             raise CaptureError(
-                f"{root}: missing cameras: keypoint folders {_names(folders[n].name for n in extra)} in {pose_folder} have no "
-                f"camera in the calibration {calib_path} (it has {_names(calibrated)})"
+                f"{root}: missing cameras: keypoint folders in {pose_folder} without a camera in the calibration "
+                f"{calib_path}: {_names(folders[n].name for n in extra)} (the calibration has {_names(calibrated)})"
             )
     videos = _videos(root)
     stray = [p.name for n, p in videos.items() if n not in folders]
