@@ -334,6 +334,14 @@ def test_keypoint_arrays(tmp_path, scene, capsys):
     np.testing.assert_allclose(c2.detectors["keypoints"].keypoints, b, rtol=0, atol=0)
     assert c1.detectors["keypoints"].format == "coco17"
 
+    code, message = run_cli(["capture", "import", "--keypoints", str(tmp_path / "cam1.npy"), "--out", str(tmp_path / "d")], capsys)
+    assert code == 2 and message == "camera cam1: frame rate unknown (it has no video); pass --fps F or --fps cam1=F"
+    code, message = run_cli(
+        ["capture", "import", "--keypoints", str(tmp_path / "cam1.npy"), "--keypoints", f"cam1={tmp_path / 'both.npz'}:front",
+         "--fps", "30", "--out", str(tmp_path / "d")], capsys,
+    )  # fmt: skip
+    assert code == 2 and "camera 'cam1' has keypoints twice (the second from --keypoints)" in message
+
     kp, boxes, fmt = read_keypoint_array(tmp_path / "cam1.npy")  # 17 points: COCO-17
     assert fmt == "coco17"
     np.testing.assert_allclose(boxes[:, 2:4], a[..., :2].max(axis=1))

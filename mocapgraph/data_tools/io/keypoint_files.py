@@ -205,7 +205,7 @@ def read_keypoint_array(path: str | Path, fmt: str | KeypointFormat = AUTO, key:
         raise CaptureError(f"{path}: not a readable {suffix} file ({exc})") from None
     if arr.ndim != 3 or arr.shape[-1] != 3:
         raise CaptureError(f"{source}: expected shape (T, K, 3): frames, points, x y confidence; got {arr.shape}")
-    if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+    if not np.issubdtype(arr.dtype, np.number):
         raise CaptureError(f"{source}: expected numbers, got dtype {arr.dtype}")
     fmt = _resolve(fmt, arr.shape[1], source)
     keypoints = _normalise(fmt, arr, source)
