@@ -1,0 +1,344 @@
+"""The same person across cameras: every camera's person tracks matched to the others' by epipolar geometry.
+
+Two tracks of two static cameras show the same person when one rigid two-view geometry explains
+all their keypoints: every keypoint of every frame both tracks see is a correspondence, and an
+essential matrix fitted to them by RANSAC (``cv2.findEssentialMat``, on coordinates normalised by
+the intrinsics, known or guessed) leaves most of them within a few pixels of their epipolar
+lines. Two different people give no such geometry once they move differently (their keypoints
+would need a camera that moves with them). Left/right swaps of the detector are tolerated: each
+frame's labels in the second camera are taken as detected or with left and right exchanged
+(:func:`mocapgraph.body.labelling.swap_permutation`), whichever fits the geometry better.
+
+:func:`associate_tracks` scores every pair of tracks of every pair of cameras and groups the
+tracks into people, greedily joining the two groups with the best pooled score: a person holds at
+most one track per camera at any time (tracks of one camera that follow each other in time may
+be fragments of one person), so the grouping is consistent around every cycle of cameras.
+
+Arrays: tracks ``(P, T, K, 3)`` per camera (x, y pixels, confidence; NaN where missing), frame
+``t`` of every camera the same instant; intrinsics ``(3, 3)`` pixels; distortion OpenCV's ``(5,)``.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import swap_permutation
+from mocapgraph.errors import MocapgraphError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_THRESHOLD = 0.02
+"""Epipolar distance within which a correspondence agrees with a pair's geometry, as a fraction
+of the person's height in the image (the geometric mean of the two tracks' median heights): a 2D
+detector's error grows with the person's size in pixels (15 px on a person 750 px tall)."""
+
+DEFAULT_MIN_AFFINITY = 0.5
+"""Pooled inlier ratio above which two groups of tracks are joined into one person."""
+
+MIN_CORRESPONDENCES = 40
+"""Fewer common keypoints than this say nothing about a pair (a few frames at the edge of a view)."""
+
+MIN_VISIBILITY = 0.5
+"""Keypoints below this confidence are the detector's guesses and make no correspondence."""
+
+_MAX_RELABEL_ROUNDS = 3
+_RANSAC_CONFIDENCE = 0.999
+_RANSAC_SAMPLE = 400
+
+
+@dataclass(frozen=True)
+class PairScore:
+    """How well two tracks of two cameras fit one two-view geometry.
+
+    Attributes:
+        frames: frames in which both tracks have common keypoints.
+        correspondences: keypoint pairs (every common keypoint of every such frame).
+        inliers: correspondences within the threshold of the fitted geometry.
+        median_error_px: median epipolar (Sampson) distance of all correspondences, pixels.
+        swapped_frames: the frames whose second-camera labels fit better with left and right
+            exchanged (relative to the first camera's: a swap in either camera).
+    """
+
+    frames: int
+    correspondences: int
+    inliers: int
+    median_error_px: float
+    swapped_frames: tuple[int, ...]
+
+    @property
+    def inlier_ratio(self) -> float:
+        return self.inliers / self.correspondences
+
+
+def normalised_points(keypoints, K, distortion=None, min_visibility: float = MIN_VISIBILITY) -> np.ndarray:
+    """``(..., K, 3)`` pixel keypoints → ``(..., K, 2)`` undistorted coordinates on the plane
+    ``z = 1`` of the camera (``K⁻¹ x`` for a lens without distortion); NaN where a point is
+    missing or its confidence is below ``min_visibility``."""
+    kp = np.asarray(keypoints, dtype=float)
+    out = np.full(kp.shape[:-1] + (2,), np.nan)
+    ok = np.isfinite(kp).all(-1) & (kp[..., 2] >= min_visibility)
+    if ok.any():
+        dist = np.zeros(5) if distortion is None else np.asarray(distortion, dtype=float)
+        pts = cv2.undistortPoints(kp[ok][:, None, :2], np.asarray(K, dtype=float), dist)
+        out[ok] = pts[:, 0]
+    return out
+
+
+def track_heights(tracks, min_visibility: float = MIN_VISIBILITY) -> np.ndarray:
+    """``(..., T, K, 3)`` tracks → ``(...)`` median height in pixels of the points seen with
+    confidence ≥ ``min_visibility`` over the frames with at least two such points (NaN: none)."""
+    kp = np.asarray(tracks, dtype=float)
+    seen = np.isfinite(kp).all(-1) & (kp[..., 2] >= min_visibility)
+    y = np.where(seen, kp[..., 1], np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # frames and tracks without points: NaN
+        span = np.nanmax(y, axis=-1) - np.nanmin(y, axis=-1)
+        span[seen.sum(-1) < 2] = np.nan
+        return np.nanmedian(span, axis=-1)
+
+
+def sampson_distance(E: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """First-order distance of correspondences ``x1, x2 (N, 2)`` (normalised coordinates) from
+    the epipolar geometry ``x2ᵀ E x1 = 0``, in the units of the coordinates."""
+    h1 = np.concatenate([x1, np.ones((len(x1), 1))], axis=1)
+    h2 = np.concatenate([x2, np.ones((len(x2), 1))], axis=1)
+    Ex1, Etx2 = h1 @ E.T, h2 @ E
+    num = np.abs(np.sum(h2 * Ex1, axis=1))
+    den = np.sqrt(Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2)
+    return num / np.maximum(den, 1e-300)
+
+
+def _fit_essential(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int) -> np.ndarray | None:
+    """RANSAC essential matrix of normalised correspondences; of several solutions, the one with
+    the most inliers. None when OpenCV finds none."""
+    if len(x1) > _RANSAC_SAMPLE:
+        # RANSAC's time goes into scoring every hypothesis on every point; a random subset ranks
+        # the hypotheses as well (the inliers are then counted on all points)
+        keep = np.random.default_rng(seed).choice(len(x1), _RANSAC_SAMPLE, replace=False)
+        x1, x2 = x1[keep], x2[keep]
+    cv2.setRNGSeed(seed)
+    E, _ = cv2.findEssentialMat(x1, x2, np.eye(3), method=cv2.RANSAC, prob=_RANSAC_CONFIDENCE, threshold=threshold)
+    if E is None or E.shape[0] < 3:
+        return None
+    candidates = E.reshape(-1, 3, 3)
+    counts = [(sampson_distance(e, x1, x2) < threshold).sum() for e in candidates]
+    return candidates[int(np.argmax(counts))]
+
+
+def score_pair(
+    a: np.ndarray,
+    b: np.ndarray,
+    focal_px: float,
+    swap: np.ndarray | None = None,
+    *,
+    threshold_px: float,
+    min_correspondences: int = MIN_CORRESPONDENCES,
+    seed: int = 0,
+) -> PairScore | None:
+    """Score two tracks as one person seen by two static cameras.
+
+    Args:
+        a, b: ``(T, K, 2)`` normalised coordinates of the two tracks (:func:`normalised_points`),
+            frame ``t`` the same instant in both (only the first ``min(len(a), len(b))`` frames count).
+        focal_px: the focal length that turns normalised distances into pixels (the geometric
+            mean of the two cameras').
+        swap: ``(K,)`` left/right permutation (:func:`~mocapgraph.body.labelling.swap_permutation`)
+            to try on ``b`` frame by frame; None: labels as detected.
+        threshold_px: inlier distance, pixels.
+        min_correspondences: fewer common keypoints give no score.
+        seed: OpenCV's RANSAC seed.
+
+    Returns:
+        the score, or None when the tracks share too few keypoints.
+    """
+    T = min(len(a), len(b))
+    a, b = a[:T], b[:T]
+    threshold = threshold_px / focal_px
+
+    def pairs(labels_b: np.ndarray):
+        common = np.isfinite(a).all(-1) & np.isfinite(labels_b).all(-1)
+        return a[common], labels_b[common], common
+
+    x1, x2, common = pairs(b)
+    if len(x1) < min_correspondences:
+        return None
+    swapped = np.zeros(T, dtype=bool)
+    E = _fit_essential(x1, x2, threshold, seed)
+    if E is None:
+        return None
+    if swap is not None:
+        b_swapped = b[:, swap]
+        for _ in range(_MAX_RELABEL_ROUNDS):
+            errors = []
+            for labels in (b, b_swapped):
+                y1, y2, mask = pairs(labels)
+                per_point = np.full(mask.shape, np.nan)
+                per_point[mask] = sampson_distance(E, y1, y2)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # frames without common points: NaN
+                    errors.append(np.nanmedian(per_point, axis=1))
+            better = np.nan_to_num(errors[1], nan=np.inf) < np.nan_to_num(errors[0], nan=np.inf)
+            if np.array_equal(better, swapped):
+                break
+            swapped = better
+            x1, x2, common = pairs(np.where(swapped[:, None, None], b_swapped, b))
+            if len(x1) < min_correspondences:
+                return None
+            E = _fit_essential(x1, x2, threshold, seed)
+            if E is None:
+                return None
+    d = sampson_distance(E, x1, x2)
+    return PairScore(
+        frames=int(common.any(-1).sum()),
+        correspondences=len(d),
+        inliers=int((d < threshold).sum()),
+        median_error_px=float(np.median(d) * focal_px),
+        swapped_frames=tuple(np.flatnonzero(swapped).tolist()),
+    )
+
+
+@dataclass
+class Association:
+    """Which track of which camera is which person.
+
+    Attributes:
+        cameras: camera names, in the order given.
+        people: per person, camera → indices of its tracks there (several only when they follow
+            one another in time); a camera that does not see the person is absent.
+        scores: ``(camera a, track i, camera b, track j)`` → :class:`PairScore` of every pair of
+            tracks that share enough keypoints, camera ``a`` before ``b`` in ``cameras``.
+    """
+
+    cameras: tuple[str, ...]
+    people: list[dict[str, tuple[int, ...]]]
+    scores: dict[tuple[str, int, str, int], PairScore] = field(default_factory=dict)
+
+    def score(self, cam_a: str, i: int, cam_b: str, j: int) -> PairScore | None:
+        if self.cameras.index(cam_a) > self.cameras.index(cam_b):
+            cam_a, i, cam_b, j = cam_b, j, cam_a, i
+        return self.scores.get((cam_a, i, cam_b, j))
+
+    def affinity(self, person: int) -> float:
+        """The person's pooled inlier ratio over all its pairs of tracks in different cameras
+        (NaN for a person seen by one camera only)."""
+        return _pooled(self, _nodes(self.people[person]), _nodes(self.people[person]))
+
+    def person_of(self, camera: str, track: int) -> int | None:
+        for p, person in enumerate(self.people):
+            if track in person.get(camera, ()):
+                return p
+        return None
+
+
+def _nodes(person: Mapping[str, tuple[int, ...]]) -> list[tuple[str, int]]:
+    return [(cam, i) for cam, tracks in person.items() for i in tracks]
+
+
+def _pooled(assoc: Association, group_a, group_b) -> float:
+    inliers = total = 0
+    for cam_a, i in group_a:
+        for cam_b, j in group_b:
+            if cam_a != cam_b:
+                s = assoc.score(cam_a, i, cam_b, j)
+                if s is not None:
+                    inliers, total = inliers + s.inliers, total + s.correspondences
+    return inliers / total if total else float("nan")
+
+
+def associate_tracks(
+    tracks: Mapping[str, np.ndarray],
+    intrinsics: Mapping[str, np.ndarray],
+    distortion: Mapping[str, np.ndarray | None] | None = None,
+    *,
+    keypoint_format: str = "blazepose33",
+    threshold: float = DEFAULT_THRESHOLD,
+    min_affinity: float = DEFAULT_MIN_AFFINITY,
+    min_correspondences: int = MIN_CORRESPONDENCES,
+    seed: int = 0,
+) -> Association:
+    """Group every camera's person tracks into people.
+
+    Args:
+        tracks: camera name → ``(P, T, K, 3)`` pixel keypoints of its tracks (``P`` may be 0).
+        intrinsics: camera name → ``(3, 3)``, calibrated or guessed.
+        distortion: camera name → OpenCV distortion ``(5,)`` or None (no distortion).
+        keypoint_format: the keypoints' format (its left/right pairs give the swap to tolerate).
+        threshold: inlier distance of :func:`score_pair` as a fraction of the person's height in pixels.
+        min_affinity: two groups are joined only when their pooled inlier ratio is at least this.
+        min_correspondences: see :func:`score_pair`.
+        seed: RANSAC seed.
+
+    Returns:
+        the association; people are ordered by how many cameras see them, then by affinity.
+    """
+    cameras = tuple(tracks)
+    missing = [c for c in cameras if c not in intrinsics]
+    if missing:
+        raise MocapgraphError(f"associate_tracks: no intrinsics for camera(s) {missing}")
+    fmt = get_format(keypoint_format)
+    swap = swap_permutation(fmt.names, "body")
+    distortion = distortion or {}
+    normalised, focal, seen, height = {}, {}, {}, {}
+    for cam in cameras:
+        kp = np.asarray(tracks[cam], dtype=float)
+        if kp.ndim != 4 or kp.shape[2:] != (fmt.num_points, 3):
+            raise MocapgraphError(f"camera {cam}: tracks must be (P, T, {fmt.num_points}, 3), got {kp.shape}")
+        K = np.asarray(intrinsics[cam], dtype=float)
+        normalised[cam] = normalised_points(kp, K, distortion.get(cam))
+        focal[cam] = float(np.sqrt(K[0, 0] * K[1, 1]))
+        seen[cam] = np.isfinite(kp[..., 2]).any(-1)
+        height[cam] = track_heights(kp)
+    assoc = Association(cameras, [])
+    for ca, cam_a in enumerate(cameras):
+        for cam_b in cameras[ca + 1 :]:
+            f = float(np.sqrt(focal[cam_a] * focal[cam_b]))
+            for i, a in enumerate(normalised[cam_a]):
+                for j, b in enumerate(normalised[cam_b]):
+                    threshold_px = threshold * float(np.sqrt(height[cam_a][i] * height[cam_b][j]))
+                    if not np.isfinite(threshold_px):
+                        continue
+                    s = score_pair(a, b, f, swap, threshold_px=threshold_px, min_correspondences=min_correspondences, seed=seed)
+                    if s is not None:
+                        assoc.scores[(cam_a, i, cam_b, j)] = s
+                        log.debug("%s/%d ~ %s/%d: %.2f inliers, median %.1f px, %d swapped frames over %d",
+                                  cam_a, i, cam_b, j, s.inlier_ratio, s.median_error_px, len(s.swapped_frames), s.frames)  # fmt: skip
+
+    def compatible(group_a, group_b) -> bool:
+        for cam_a, i in group_a:
+            for cam_b, j in group_b:
+                T = min(seen[cam_a].shape[1], seen[cam_b].shape[1])
+                if cam_a == cam_b and (seen[cam_a][i, :T] & seen[cam_b][j, :T]).any():
+                    return False
+        return True
+
+    groups = [[(cam, i)] for cam in cameras for i in range(len(normalised[cam]))]
+    while True:
+        best, pair = min_affinity, None
+        for g in range(len(groups)):
+            for h in range(g + 1, len(groups)):
+                value = _pooled(assoc, groups[g], groups[h])
+                if value >= best and compatible(groups[g], groups[h]):
+                    best, pair = value, (g, h)
+        if pair is None:
+            break
+        g, h = pair
+        groups[g] = groups[g] + groups.pop(h)
+    people = []
+    for group in groups:
+        person: dict[str, tuple[int, ...]] = {}
+        for cam in cameras:
+            mine = tuple(sorted(i for c, i in group if c == cam))
+            if mine:
+                person[cam] = mine
+        people.append(person)
+    assoc.people = people
+    order = sorted(range(len(people)), key=lambda p: (-len(people[p]), -np.nan_to_num(assoc.affinity(p), nan=0.0)))
+    assoc.people = [people[p] for p in order]
+    return assoc
