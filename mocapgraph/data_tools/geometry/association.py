@@ -30,6 +30,8 @@ import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import swap_permutation
+from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
+from mocapgraph.data_tools.geometry.epipolar import normalised, sampson_px
 from mocapgraph.errors import MocapgraphError
 
 log = logging.getLogger(__name__)
@@ -79,15 +81,11 @@ class PairScore:
 
 def normalised_points(keypoints, K, distortion=None, min_visibility: float = MIN_VISIBILITY) -> np.ndarray:
     """``(..., K, 3)`` pixel keypoints → ``(..., K, 2)`` undistorted coordinates on the plane
-    ``z = 1`` of the camera (``K⁻¹ x`` for a lens without distortion); NaN where a point is
-    missing or its confidence is below ``min_visibility``."""
+    ``z = 1`` of the camera; NaN where a point is missing or its confidence is below ``min_visibility``."""
     kp = np.asarray(keypoints, dtype=float)
-    out = np.full(kp.shape[:-1] + (2,), np.nan)
-    ok = np.isfinite(kp).all(-1) & (kp[..., 2] >= min_visibility)
-    if ok.any():
-        dist = np.zeros(5) if distortion is None else np.asarray(distortion, dtype=float)
-        pts = cv2.undistortPoints(kp[ok][:, None, :2], np.asarray(K, dtype=float), dist)
-        out[ok] = pts[:, 0]
+    pixels = kp[..., :2] if distortion is None else undistort_pixels(kp[..., :2], K, distortion)
+    out = normalised(pixels, K)
+    out[~(np.isfinite(kp).all(-1) & (kp[..., 2] >= min_visibility))] = np.nan
     return out
 
 
@@ -104,17 +102,6 @@ def track_heights(tracks, min_visibility: float = MIN_VISIBILITY) -> np.ndarray:
         return np.nanmedian(span, axis=-1)
 
 
-def sampson_distance(E: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-    """First-order distance of correspondences ``x1, x2 (N, 2)`` (normalised coordinates) from
-    the epipolar geometry ``x2ᵀ E x1 = 0``, in the units of the coordinates."""
-    h1 = np.concatenate([x1, np.ones((len(x1), 1))], axis=1)
-    h2 = np.concatenate([x2, np.ones((len(x2), 1))], axis=1)
-    Ex1, Etx2 = h1 @ E.T, h2 @ E
-    num = np.abs(np.sum(h2 * Ex1, axis=1))
-    den = np.sqrt(Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2)
-    return num / np.maximum(den, 1e-300)
-
-
 def _fit_essential(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int) -> np.ndarray | None:
     """RANSAC essential matrix of normalised correspondences; of several solutions, the one with
     the most inliers. None when OpenCV finds none."""
@@ -128,7 +115,7 @@ def _fit_essential(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int) 
     if E is None or E.shape[0] < 3:
         return None
     candidates = E.reshape(-1, 3, 3)
-    counts = [(sampson_distance(e, x1, x2) < threshold).sum() for e in candidates]
+    counts = [(sampson_px(e, x1, x2) < threshold).sum() for e in candidates]
     return candidates[int(np.argmax(counts))]
 
 
@@ -160,41 +147,49 @@ def score_pair(
     """
     T = min(len(a), len(b))
     a, b = a[:T], b[:T]
+    # everything below is in normalised coordinates (sampson_px of an essential matrix measures
+    # in them); the focal length converts the threshold and the reported error
     threshold = threshold_px / focal_px
 
     def pairs(labels_b: np.ndarray):
         common = np.isfinite(a).all(-1) & np.isfinite(labels_b).all(-1)
         return a[common], labels_b[common], common
 
-    x1, x2, common = pairs(b)
-    if len(x1) < min_correspondences:
+    labellings = [b] if swap is None else [b, b[:, swap]]
+    # start from the labelling that fits better as a whole: a detector may swap in most frames
+    start = None
+    for k, labels in enumerate(labellings):
+        x1, x2, _ = pairs(labels)
+        E = _fit_essential(x1, x2, threshold, seed) if len(x1) >= min_correspondences else None
+        if E is not None:
+            inliers = int((sampson_px(E, x1, x2) < threshold).sum())
+            if start is None or inliers > start[0]:
+                start = (inliers, E, k)
+    if start is None:
         return None
-    swapped = np.zeros(T, dtype=bool)
-    E = _fit_essential(x1, x2, threshold, seed)
-    if E is None:
-        return None
-    if swap is not None:
-        b_swapped = b[:, swap]
-        for _ in range(_MAX_RELABEL_ROUNDS):
-            errors = []
-            for labels in (b, b_swapped):
-                y1, y2, mask = pairs(labels)
-                per_point = np.full(mask.shape, np.nan)
-                per_point[mask] = sampson_distance(E, y1, y2)
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", RuntimeWarning)  # frames without common points: NaN
-                    errors.append(np.nanmedian(per_point, axis=1))
-            better = np.nan_to_num(errors[1], nan=np.inf) < np.nan_to_num(errors[0], nan=np.inf)
-            if np.array_equal(better, swapped):
-                break
-            swapped = better
-            x1, x2, common = pairs(np.where(swapped[:, None, None], b_swapped, b))
-            if len(x1) < min_correspondences:
-                return None
-            E = _fit_essential(x1, x2, threshold, seed)
-            if E is None:
-                return None
-    d = sampson_distance(E, x1, x2)
+    _, E, k = start
+    swapped = np.full(T, k == 1)
+    x1, x2, common = pairs(labellings[k])
+    for _ in range(_MAX_RELABEL_ROUNDS if swap is not None else 0):
+        errors = []
+        for labels in labellings:
+            y1, y2, mask = pairs(labels)
+            per_point = np.full(mask.shape, np.nan)
+            per_point[mask] = sampson_px(E, y1, y2)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # frames without common points: NaN
+                # truncated at the threshold: a frame's outliers (a hand on the wrong person) count once
+                errors.append(np.nanmean(np.minimum(per_point, threshold) ** 2, axis=1))
+        better = np.nan_to_num(errors[1], nan=np.inf) < np.nan_to_num(errors[0], nan=np.inf)
+        if np.array_equal(better, swapped):
+            break
+        swapped = better
+        x1, x2, common = pairs(np.where(swapped[:, None, None], labellings[1], labellings[0]))
+        refit = _fit_essential(x1, x2, threshold, seed) if len(x1) >= min_correspondences else None
+        if refit is None:
+            return None
+        E = refit
+    d = sampson_px(E, x1, x2)
     return PairScore(
         frames=int(common.any(-1).sum()),
         correspondences=len(d),
@@ -285,13 +280,13 @@ def associate_tracks(
     fmt = get_format(keypoint_format)
     swap = swap_permutation(fmt.names, "body")
     distortion = distortion or {}
-    normalised, focal, seen, height = {}, {}, {}, {}
+    coords, focal, seen, height = {}, {}, {}, {}
     for cam in cameras:
         kp = np.asarray(tracks[cam], dtype=float)
         if kp.ndim != 4 or kp.shape[2:] != (fmt.num_points, 3):
             raise MocapgraphError(f"camera {cam}: tracks must be (P, T, {fmt.num_points}, 3), got {kp.shape}")
         K = np.asarray(intrinsics[cam], dtype=float)
-        normalised[cam] = normalised_points(kp, K, distortion.get(cam))
+        coords[cam] = normalised_points(kp, K, distortion.get(cam))
         focal[cam] = float(np.sqrt(K[0, 0] * K[1, 1]))
         seen[cam] = np.isfinite(kp[..., 2]).any(-1)
         height[cam] = track_heights(kp)
@@ -299,8 +294,8 @@ def associate_tracks(
     for ca, cam_a in enumerate(cameras):
         for cam_b in cameras[ca + 1 :]:
             f = float(np.sqrt(focal[cam_a] * focal[cam_b]))
-            for i, a in enumerate(normalised[cam_a]):
-                for j, b in enumerate(normalised[cam_b]):
+            for i, a in enumerate(coords[cam_a]):
+                for j, b in enumerate(coords[cam_b]):
                     threshold_px = threshold * float(np.sqrt(height[cam_a][i] * height[cam_b][j]))
                     if not np.isfinite(threshold_px):
                         continue
@@ -318,7 +313,7 @@ def associate_tracks(
                     return False
         return True
 
-    groups = [[(cam, i)] for cam in cameras for i in range(len(normalised[cam]))]
+    groups = [[(cam, i)] for cam in cameras for i in range(len(coords[cam]))]
     while True:
         best, pair = min_affinity, None
         for g in range(len(groups)):
