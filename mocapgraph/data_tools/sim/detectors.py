@@ -414,7 +414,7 @@ DETECTOR_PRESETS: dict[str, DetectorModel] = {
         conf_noise_std=0.07, conf_threshold=0.05,
         occluded_drop_prob=0.5, occluded_noise_mult=2.0, occluded_conf_mult=0.4,
         frame_miss_prob=0.03, min_person_height_px=40.0, min_keypoints_in_frame=4,
-        keypoint_miss_prob=0.03, body_swap_prob=0.0, limb_swap_prob=0.03,
+        keypoint_miss_prob=0.03, body_swap_prob=0.0, limb_swap_prob=0.01,
         limb_swap_leg_fraction=0.8, outlier_prob=0.01, border_dropout_px=8.0,
         faults=DetectorFaults(
             body_swap_rate_hz=(0.015, 0.2, 0.8), limb_swap_rate_hz=(0.05, 0.6, 0.1),
@@ -430,7 +430,7 @@ DETECTOR_PRESETS: dict[str, DetectorModel] = {
         noise_frame_correlation=0.4, conf_max=0.92, conf_error_frac_of_height=0.03,
         conf_noise_std=0.05, occluded_drop_prob=0.05, occluded_noise_mult=2.5,
         occluded_conf_mult=0.45, frame_miss_prob=0.02, min_person_height_px=24.0,
-        keypoint_miss_prob=0.005, body_swap_prob=0.0, limb_swap_prob=0.02, outlier_prob=0.008,
+        keypoint_miss_prob=0.005, body_swap_prob=0.0, limb_swap_prob=0.005, outlier_prob=0.008,
         faults=DetectorFaults(
             body_swap_rate_hz=(0.01, 0.15, 0.6), limb_swap_rate_hz=(0.03, 0.4, 0.06),
             guess_prob=0.4, guess_mirror_weight=0.5, guess_error_m=0.04,
@@ -444,7 +444,7 @@ DETECTOR_PRESETS: dict[str, DetectorModel] = {
         noise_frame_correlation=0.4, conf_max=0.95, conf_error_frac_of_height=0.025,
         conf_noise_std=0.04, occluded_drop_prob=0.02, occluded_noise_mult=2.0,
         occluded_conf_mult=0.5, frame_miss_prob=0.015, min_person_height_px=20.0,
-        keypoint_miss_prob=0.003, body_swap_prob=0.0, limb_swap_prob=0.015, outlier_prob=0.005,
+        keypoint_miss_prob=0.003, body_swap_prob=0.0, limb_swap_prob=0.005, outlier_prob=0.005,
         faults=DetectorFaults(
             body_swap_rate_hz=(0.01, 0.12, 0.5), limb_swap_rate_hz=(0.02, 0.3, 0.05),
             guess_prob=0.4, guess_mirror_weight=0.5, guess_error_m=0.04,
@@ -460,7 +460,7 @@ DETECTOR_PRESETS: dict[str, DetectorModel] = {
         conf_noise_std=0.05, occluded_drop_prob=0.0, occluded_noise_mult=2.5,
         occluded_conf_mult=0.3, frame_miss_prob=0.05, min_person_height_px=60.0,
         min_keypoints_in_frame=6, keypoint_miss_prob=0.0, body_swap_prob=0.0,
-        limb_swap_prob=0.01, outlier_prob=0.005,
+        limb_swap_prob=0.003, outlier_prob=0.005,
         # calibrated on the lab clip of issue 14: one camera swapped 31 of 100 frames (60 fps)
         faults=DetectorFaults(
             body_swap_rate_hz=(0.02, 0.25, 1.0), limb_swap_rate_hz=(0.03, 0.3, 0.05),
