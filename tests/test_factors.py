@@ -334,6 +334,41 @@ def test_labelling_is_checked(scene):
         labelled_factor(scene, scene.observed, Labelling(PERMUTATIONS, cost=-1.0))
 
 
+@pytest.mark.parametrize("gm_sigma_px", [8.0, math.inf])
+@pytest.mark.parametrize("labelled", [False, True])
+def test_reprojection_with_variable_focal_lengths(scene, gm_sigma_px, labelled):
+    """Cameras 0 (refined) and 1 (fixed) with a focal log scale: at scale s the factor equals
+    one built with the focal lengths multiplied by e^s; the Jacobians (the focal columns too)
+    equal central differences, with and without labelling hypotheses."""
+    scene.scale.sigma_px = gm_sigma_px
+    focal_keys = [gtsam.symbol("f", 0), gtsam.symbol("f", 1), None]
+    labelling = Labelling(PERMUTATIONS, cost=2.0) if labelled else None
+    factor = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, noise_px=scene.noise_px, focal_keys=focal_keys,
+        labelling=labelling,
+    )  # fmt: skip
+    assert list(factor.keys())[-2:] == focal_keys[:2]
+    values = gtsam.Values(scene.values)
+    log_scales = (0.12, -0.2)
+    for key, s in zip(focal_keys, log_scales):
+        values.insert(key, np.array([s]))
+    scaled = scene.intrinsics.copy()
+    scaled[0, :2] *= math.exp(log_scales[0])
+    scaled[1, :2] *= math.exp(log_scales[1])
+    plain = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scaled, scene.observed, scene.weights, FORMAT, scene.scale, noise_px=scene.noise_px, labelling=labelling,
+    )  # fmt: skip
+    assert factor.error(values) == pytest.approx(plain.error(values), rel=1e-12)
+    assert_jacobians(factor, values)
+    with pytest.raises(MocapgraphError, match="focal_keys"):
+        reprojection_factor(
+            scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+            scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, focal_keys=focal_keys[:2],
+        )  # fmt: skip
+
+
 def interpolated_factor(scene, fraction: float, shape=True):
     """The scene's observations explained by the state ``fraction`` of the way from state 7 to 8."""
     return reprojection_factor(

@@ -62,4 +62,17 @@ def swap_permutation(names: Sequence[str], kind: str) -> np.ndarray:
     return perm
 
 
-__all__ = ["LIMB_PARTS", "SWAP_KINDS", "part_name", "swap_permutation"]
+def then(names: Sequence[str], first: int, second: int) -> int:
+    """The code of relabelling by swap ``first`` and then by ``second`` (codes of
+    :data:`SWAP_KINDS`), or ``second`` when the two together are no single kind (e.g. the whole
+    body and then the legs back: the arms and the trunk alone)."""
+    if first <= 0 or second <= 0:
+        return max(first, second, 0)
+    both = swap_permutation(names, SWAP_KINDS[first])[swap_permutation(names, SWAP_KINDS[second])]
+    for code, kind in enumerate(SWAP_KINDS):
+        if np.array_equal(both, swap_permutation(names, kind)):
+            return code
+    return second
+
+
+__all__ = ["LIMB_PARTS", "SWAP_KINDS", "part_name", "swap_permutation", "then"]

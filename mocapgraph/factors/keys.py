@@ -15,6 +15,7 @@ GTSAM keys are ``gtsam.symbol(char, index)``:
 | motion-prior latent of window ``w`` (motion VAE) | ``motion_latent_key(w)`` = ``symbol('m', w)`` | ``Vector(L)`` |
 | motion-prior canonical frame of window ``w`` (ground origin x, y in metres, yaw in radians) | ``motion_frame_key(w)`` = ``symbol('n', w)`` | ``Vector(3)`` |
 | the ground plane (tilt about world X and Y in radians, height in metres) | ``ground_key()`` = ``symbol('g', 0)`` | ``Vector(3)`` |
+| focal length of camera ``c``, as the log of its ratio to the capture's (``fx, fy = e^s·(fx₀, fy₀)``) | ``focal_key(c)`` = ``symbol('f', c)`` | ``Vector(1)`` |
 
 Body states are numbered in time order; cameras in capture order, frames in each camera's order.
 """
@@ -63,6 +64,10 @@ def motion_frame_key(w: int) -> int:
 
 def ground_key() -> int:
     return gtsam.symbol("g", 0)
+
+
+def focal_key(camera: int) -> int:
+    return gtsam.symbol("f", camera)
 
 
 def nav_keys(n: int) -> tuple[int, int, int]:

@@ -165,11 +165,14 @@ class Labelling:
         cost: the cost of relabelling one camera, in the units of the factor's error
             (``½|r|²``, whitened): it keeps a camera as detected unless another labelling
             clearly fits better.
+        enabled: False keeps every camera as detected (a solver switches the hypotheses on
+            once the body is roughly in place).
         choice: ``(C,)`` per camera, the hypothesis the last evaluation took.
     """
 
     permutations: np.ndarray
     cost: float
+    enabled: bool = True
     choice: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
 
     def check(self, K: int, C: int) -> None:
@@ -190,7 +193,7 @@ class Labelling:
 class _ReprojectionError:
     """The CustomFactor callback: reads the variables, runs the native kernel, slices the Jacobian."""
 
-    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, rows, labelling):
+    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, rows, labelling, focals):
         self.cache = cache
         self.rows = rows  # the kernel's rows that are kept (usable observations), or None for all
         self.states = states  # [(root key, pose key)]: one state, or two interpolated by `fraction`
@@ -210,6 +213,7 @@ class _ReprojectionError:
         self.kernel = native_module().reproject
         self.interpolate = native_module().interpolate_pose  # interpolate_root without its wrapper: ~1 µs a call
         self.labelling = labelling
+        self.focals = focals  # [(camera index, key)]: cameras whose focal length is a variable
 
     def _choose(self, entry, args, weights) -> np.ndarray:
         """Per camera, the labelling whose robust cost is lowest at the current values (ties: as
@@ -217,7 +221,7 @@ class _ReprojectionError:
         predicted pixels; every hypothesis is then scored in numpy."""
         C = len(self.cameras)
         K = self.observed.shape[1]
-        if not np.isfinite(self.scale.sigma_px):
+        if not (self.labelling.enabled and np.isfinite(self.scale.sigma_px)):
             return np.zeros(C, dtype=np.intp)
         # observed 0 and weight 1: the residual is the predicted pixel itself, where it is valid
         ones = np.ascontiguousarray(np.broadcast_to(entry.table.mapped[None].astype(float), (C, K)))
@@ -235,6 +239,30 @@ class _ReprojectionError:
         costs[1:] += self.labelling.cost
         return np.argmin(costs, axis=0)
 
+    def _focal_jacobian(self, entry, args, observed, weights) -> np.ndarray:
+        """``(2CK, F)`` the residual's derivative by each variable focal length's log scale ``s``
+        (``fx, fy = e^s (fx0, fy0)``): ``∂(u - cx)/∂s = u - cx``, through the robust weight
+        ``∂r/∂e = w s_gm (I - e eᵀ/(σ² + |e|²))`` of the kernel (module docstring)."""
+        C, K = observed.shape[:2]
+        ones = np.ascontiguousarray(np.broadcast_to(entry.table.mapped[None].astype(float), (C, K)))
+        predicted, _, in_front = self.kernel(*entry.arrays, *args, np.zeros((C, K, 2)), ones, np.inf, self.min_depth, False)
+        predicted = predicted.reshape(C, K, 2)
+        valid = in_front & np.isfinite(observed).all(-1) & (weights > 0)
+        e = np.where(valid[..., None], predicted - np.nan_to_num(observed), 0.0)
+        w = np.where(valid, weights, 0.0)
+        sigma = self.scale.sigma_px
+        if np.isfinite(sigma) and sigma > 0:
+            denom = sigma**2 + np.sum(e * e, axis=-1)
+            drde = (w * sigma / np.sqrt(denom))[..., None, None] * (np.eye(2) - e[..., :, None] * e[..., None, :] / denom[..., None, None])
+        else:
+            drde = w[..., None, None] * np.eye(2)
+        centred = predicted - args[3][:, None, 2:]  # (u - cx, v - cy)
+        per_camera = np.einsum("ckij,ckj->cki", drde, centred).reshape(C, 2 * K)
+        out = np.zeros((C, 2 * K, len(self.focals)))
+        for i, (c, _) in enumerate(self.focals):
+            out[c, :, i] = per_camera[c]
+        return out.reshape(2 * C * K, len(self.focals))
+
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
         shape = self.fixed_shape if self.shape_key is None else values.atVector(self.shape_key)
         entry = self.cache.entry(shape)
@@ -249,7 +277,12 @@ class _ReprojectionError:
             next_root, next_pose = self.states[1]
             root, A0, A1 = self.interpolate(values.atPose3(root_key).matrix(), values.atPose3(next_root).matrix(), a)
             pose = (1.0 - a) * values.atVector(pose_key) + a * values.atVector(next_pose)
-        args = (root, pose.reshape(NUM_JOINTS - 1, 3), cameras, self.intrinsics)
+        intrinsics = self.intrinsics
+        if self.focals:
+            intrinsics = intrinsics.copy()
+            for c, key in self.focals:
+                intrinsics[c, :2] *= np.exp(values.atVector(key)[0])
+        args = (root, pose.reshape(NUM_JOINTS - 1, 3), cameras, intrinsics)
         observed, rows = self.observed, self.rows
         try:
             if self.labelling is not None:
@@ -263,9 +296,13 @@ class _ReprojectionError:
             residual, jac, _ = self.kernel(*entry.arrays, *args, observed, weights, self.scale.sigma_px, self.min_depth, H is not None)
         except ValueError as exc:
             raise MocapgraphError(str(exc)) from None
+        if H is not None and self.focals:
+            focal_jac = self._focal_jacobian(entry, args, observed, weights)
         if rows is not None:
             residual = residual[rows]
             jac = None if jac is None else jac[rows]
+            if H is not None and self.focals:
+                focal_jac = focal_jac[rows]
         if self.labelling is not None:
             # the relabellings' cost as one more row, constant in the variables
             residual = np.append(residual, np.sqrt(2.0 * self.labelling.cost * np.count_nonzero(self.labelling.choice)))
@@ -284,6 +321,9 @@ class _ReprojectionError:
                 H[self.first_camera - 1] = jac[:, 6 + POSE_DIM : P]
             for i, (c, _) in enumerate(self.refined):
                 H[self.first_camera + i] = jac[:, P + 6 * c : P + 6 * c + 6]
+            extra = 1 if self.labelling is not None else 0
+            for i, (c, _) in enumerate(self.focals):
+                H[self.first_camera + len(self.refined) + i] = np.vstack([focal_jac[:, [i]], np.zeros((extra, 1))])
         return residual
 
 
@@ -306,6 +346,7 @@ def reprojection_factor(
     next_state: tuple[int, int] | None = None,
     fraction: float = 0.0,
     labelling: Labelling | None = None,
+    focal_keys: list[int | None] | None = None,
 ) -> gtsam.CustomFactor:
     """Reprojection of one body state's keypoints into C cameras (see the module docstring).
 
@@ -333,10 +374,13 @@ def reprojection_factor(
         fraction: in ``(0, 1)`` with ``next_state``.
         labelling: the labelling hypotheses of every camera (:class:`Labelling`; its ``choice``
             says after each evaluation which one each camera took); None: the points as detected.
+        focal_keys: per camera, the key of its focal length's log scale ``s`` (``Vector(1)``:
+            ``fx, fy = e^s`` times the ``intrinsics``' ones, principal point fixed) when the focal
+            length is estimated, else None; None: every focal length as given.
 
     Returns:
         A ``gtsam.CustomFactor`` on ``[root_key, pose_key, *next_state, shape_key, *refined
-        camera keys]`` (camera order), two rows per usable observation (camera-major) and, with
+        camera keys, *focal keys]`` (camera order), two rows per usable observation (camera-major) and, with
         ``labelling``, one row for the relabellings' cost; unit noise model (whitened inside).
 
     Raises:
@@ -392,8 +436,13 @@ def reprojection_factor(
         raise MocapgraphError("fraction: needs next_state (the state it interpolates towards)")
     keys = [k for state in states for k in state] + ([] if shape_key is None else [int(shape_key)])
     keys += [k for _, k in refined]
+    focal_keys = [None] * C if focal_keys is None else list(focal_keys)
+    if len(focal_keys) != C:
+        raise MocapgraphError(f"focal_keys: one entry per camera ({C}), got {len(focal_keys)}")
+    focals = [(c, int(k)) for c, k in enumerate(focal_keys) if k is not None]
+    keys += [k for _, k in focals]
     if len(set(keys)) != len(keys):
-        raise MocapgraphError("reprojection_factor: the root, pose, shape and camera keys must all differ")
+        raise MocapgraphError("reprojection_factor: the root, pose, shape, camera and focal keys must all differ")
     if fixed_shape is not None:
         fixed_shape = as_checked_array(fixed_shape, "fixed_shape", (body.shape_dim,))
     usable = np.repeat((np.isfinite(observed).all(-1) & (weights > 0)).ravel(), 2)
@@ -416,6 +465,7 @@ def reprojection_factor(
         float(min_depth),
         None if usable.all() else np.flatnonzero(usable),
         labelling,
+        focals,
     )
     rows = int(usable.sum()) + (labelling is not None)
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), keys, error)

@@ -27,7 +27,7 @@ from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
-from mocapgraph.factors.keys import motion_frame_key, motion_latent_key, pose_key, pose_latent_key, root_key, shape_key
+from mocapgraph.factors.keys import focal_key, motion_frame_key, motion_latent_key, pose_key, pose_latent_key, root_key, shape_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import (
@@ -45,6 +45,7 @@ from mocapgraph.priors.motion_windows import WINDOW
 POSE_PRIORS = ("none", "gmm", "vae")
 SHAPE_MODES = ("hold", "estimate")
 POSE_SMOOTHNESS = ("velocity", "acceleration")
+FOCAL_MODES = ("guessed", "all", "fixed")
 
 
 @dataclass
@@ -80,19 +81,24 @@ class GraphOptions:
     # is the hypothesis with the lower robust cost, re-decided at every linearisation; a
     # relabelling costs as much as one point `swap_cost_px` noise sigmas off.
     swaps: bool = True
-    swap_cost_px: float = 4.0
+    swap_cost_px: float = 8.0
+    # Focal lengths as variables: "guessed" (the cameras whose intrinsics are a guess), "all" or
+    # "fixed"; each held near its given value by a log-normal prior of this width.
+    focal: str = "guessed"
+    focal_sigma_log: float = 0.3
 
     def check(self) -> None:
         for name, value, choices in (
             ("pose_prior", self.pose_prior, POSE_PRIORS),
             ("shape", self.shape, SHAPE_MODES),
             ("pose_smoothness", self.pose_smoothness, POSE_SMOOTHNESS),
+            ("focal", self.focal, FOCAL_MODES),
         ):
             if value not in choices:
                 raise MocapgraphError(f"{name} {value!r}: choose one of {', '.join(choices)}")
         for name in ("noise_px", "gm_sigma_px", "pose_prior_sigma_rad", "shape_prior_sigma", "root_sigma_rad_s", "root_sigma_m_s",
                      "pose_sigma_rad_s", "pose_sigma_rad_s2", "camera_sigma_rad_s", "camera_sigma_m_s", "ground_sigma_m",
-                     "swap_cost_px"):  # fmt: skip
+                     "swap_cost_px", "focal_sigma_log"):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
@@ -154,6 +160,9 @@ class BodyGraph:
         self.scale = RobustScale(np.inf)
         self.caches: dict[str, ShapeTableCache] = {}
         self.estimated = [c for c in model.observed_cameras() if c not in self.fixed_cameras]
+        self.focal_cameras = [
+            c for c in model.observed_cameras() if options.focal == "all" or (options.focal == "guessed" and model.cameras[c].focal_guessed)
+        ]
         self.windows: list[int] = []
         # per state, its reprojection factors' labellings and the observations they cover
         self.labellings: dict[int, list[tuple[Labelling, list[Observation]]]] = {}
@@ -192,11 +201,13 @@ class BodyGraph:
             values.insert(shape_key(), np.clip(estimate.shape, lo + 1e-9, hi - 1e-9))
         for key, (c, j) in self.camera_vars(states).items():
             values.insert(key, gtsam.Pose3(estimate.cameras[c][j]))
+        for c in self.focal_cameras:
+            values.insert(focal_key(c), np.array([estimate.focal_log[c]]))
         return values
 
     def read(self, values: gtsam.Values, start: Estimate, states: range | None = None) -> Estimate:
         """The estimate in ``values`` over ``states`` (default all); everything else from ``start``."""
-        out = Estimate(start.roots.copy(), start.poses.copy(), start.shape.copy(), [c.copy() for c in start.cameras], list(start.log))
+        out = Estimate(start.roots.copy(), start.poses.copy(), start.shape.copy(), [c.copy() for c in start.cameras], list(start.log), start.focal_log.copy())
         self.update(out, values, states)
         return out
 
@@ -208,6 +219,8 @@ class BodyGraph:
             estimate.poses[i] = values.atVector(pose_key(i)).reshape(NUM_JOINTS - 1, 3)
         if self.shape_key is not None:
             estimate.shape = values.atVector(shape_key())
+        for c in self.focal_cameras:
+            estimate.focal_log[c] = values.atVector(focal_key(c))[0]
         for c in self.estimated:
             frames = self.model.camera_frames(c, states)
             if len(frames) == 0:
@@ -242,10 +255,18 @@ class BodyGraph:
                     self.body, self.cache(fmt), root_key(i), pose_key(i), self.shape_key, keys, fixed,
                     np.stack([self.model.cameras[o.camera].intrinsics for o in obs]), np.stack([o.observed for o in obs]),
                     np.stack([o.weights for o in obs]), fmt, self.scale, noise_px=self.options.noise_px,
-                    fixed_shape=self.fixed_shape, labelling=labelling, **between,
+                    fixed_shape=self.fixed_shape, labelling=labelling,
+                    focal_keys=[focal_key(o.camera) if o.camera in self.focal_cameras else None for o in obs], **between,
                 )  # fmt: skip
             )
         self.add_pose_priors(graph, i)
+
+    def relabel(self, enabled: bool) -> None:
+        """Switch the labelling hypotheses of every reprojection factor built so far on or off
+        (off: the points as detected)."""
+        for groups in self.labellings.values():
+            for labelling, _ in groups:
+                labelling.enabled = enabled
 
     def permutations(self, fmt: str) -> np.ndarray:
         """``(H, K)`` the labelling hypotheses of format ``fmt`` (:data:`~mocapgraph.body.labelling.SWAP_KINDS` order)."""
@@ -315,6 +336,16 @@ class BodyGraph:
         for key in self.camera_vars():
             graph.add(camera_ground_factor(key, sigma_m=0.05, clearance_m=self.options.camera_clearance_m))
 
+    def add_focal_priors(self, graph: gtsam.NonlinearFactorGraph) -> None:
+        """Each variable focal length near the given one: ``s ~ N(0, focal_sigma_log²)``."""
+        noise = gtsam.noiseModel.Isotropic.Sigma(1, self.options.focal_sigma_log)
+        for c in self.focal_cameras:
+            graph.add(gtsam.PriorFactorVector(focal_key(c), np.zeros(1), noise))
+
+    def focal_lengths(self, estimate: Estimate) -> dict[str, float]:
+        """``{camera name: fx}`` in pixels of the cameras whose focal length was estimated."""
+        return {self.model.cameras[c].name: float(self.model.cameras[c].K[0, 0] * np.exp(estimate.focal_log[c])) for c in self.focal_cameras}
+
     def add_shape_prior(self, graph: gtsam.NonlinearFactorGraph) -> None:
         if self.shape_key is not None:
             graph.add(shape_prior_factor(shape_key(), self.body.default_shape, self.options.shape_prior_sigma))
@@ -355,6 +386,7 @@ class BodyGraph:
             if i:
                 self.add_smoothness(graph, i)
         self.add_shape_prior(graph)
+        self.add_focal_priors(graph)
         self.add_camera_smoothness(graph)
         if ground:
             self.add_camera_ground(graph)

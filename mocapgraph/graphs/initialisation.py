@@ -24,9 +24,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mocapgraph.body.keypoint_formats import COCO17, get_format
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import nearest_rotation
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
+from mocapgraph.data_tools.geometry.epipolar import resolve_swaps
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.state_model import StateModel
@@ -189,21 +192,28 @@ def _fill_gaps(poses: np.ndarray, known: np.ndarray) -> np.ndarray:
 
 def moving_cameras_from_static(
     keypoints: list[np.ndarray | None], Ks: list[np.ndarray], ref_T_c: np.ndarray, known: np.ndarray, moving: list[bool]
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
     """Moving cameras placed again by PnP against the keypoints triangulated from the static ones.
 
     A PnP of the mean body is poor for a camera far from a walking person (metres off, measured
     on ``phones``); the static cameras, averaged over every frame, are good, so their
     triangulation of the person's actual keypoints gives a moving camera real 3D points to
-    resect from. Needs two placed static cameras; otherwise the input is returned.
+    resect from. Each frame is resected under every left/right labelling of the moving camera's
+    points (:data:`~mocapgraph.body.labelling.SWAP_KINDS`) and keeps the one with the most PnP
+    inliers (then the least error): a swapped frame would place the camera on the far side.
+    Needs two placed static cameras; otherwise the input is returned.
 
     Args:
         keypoints: per camera ``(N, 17, 3)`` COCO-17 undistorted pixels and confidences, or None.
         Ks: per camera ``(3, 3)``; ``ref_T_c``, ``known``: from :func:`relative_cameras`.
+
+    Returns:
+        ``ref_T_c``, ``known`` and, per moving camera placed, ``(N,)`` the labelling code each
+        state's points took (0 where not resected).
     """
     static = [c for c in range(len(Ks)) if not moving[c] and keypoints[c] is not None and known[c].any()]
     if len(static) < 2:
-        return ref_T_c, known
+        return ref_T_c, known, {}
     out, ok = ref_T_c.copy(), known.copy()
     P = np.stack([Ks[c] @ np.linalg.inv(ref_T_c[c, 0])[:3] for c in static])
     N = len(ref_T_c[0])
@@ -212,25 +222,43 @@ def moving_cameras_from_static(
         obs = np.stack([keypoints[c][t] for c in static])
         conf = np.where(np.nan_to_num(obs[..., 2]) >= MIN_CONFIDENCE, obs[..., 2], 0.0)
         points[t] = triangulate_points(P, obs[..., :2], conf)
+    perms = [swap_permutation(COCO17, kind) for kind in SWAP_KINDS]
+    labels: dict[int, np.ndarray] = {}
     for c in range(len(Ks)):
         if not moving[c] or keypoints[c] is None:
             continue
         poses, placed = np.tile(np.eye(4), (N, 1, 1)), np.zeros(N, dtype=bool)
+        codes = np.zeros(N, dtype=np.int8)
         for t in range(N):
-            conf = np.nan_to_num(keypoints[c][t, :, 2])
-            use = (conf >= MIN_CONFIDENCE) & np.isfinite(points[t]).all(-1) & np.isfinite(keypoints[c][t, :, :2]).all(-1)
-            if use.sum() < MIN_POINTS:
-                continue
-            found, rvec, tvec, inliers = cv2.solvePnPRansac(
-                points[t, use], keypoints[c][t, use, :2].astype(np.float64), Ks[c], None, reprojectionError=12.0, flags=cv2.SOLVEPNP_SQPNP
-            )  # fmt: skip
-            if found and inliers is not None and len(inliers) >= MIN_POINTS:
-                poses[t] = np.linalg.inv(_rigid(cv2.Rodrigues(rvec)[0], tvec[:, 0]))
-                placed[t] = True
+            best = None
+            for code, perm in enumerate(perms):
+                found = _resect(points[t], keypoints[c][t, perm], Ks[c])
+                if found is not None and (best is None or found[1:] > best[2:]):
+                    best = (code, *found)
+            if best is not None:
+                codes[t], poses[t], placed[t] = best[0], best[1], True
         if placed.sum() >= 2:
             placed[placed] = _temporal_inliers(poses[placed, :3, 3])
             out[c], ok[c] = _fill_gaps(poses, placed), placed
-    return out, ok
+            labels[c] = np.where(placed, codes, 0).astype(np.int8)
+    return out, ok, labels
+
+
+def _resect(points: np.ndarray, keypoints: np.ndarray, K: np.ndarray):
+    """PnP of ``keypoints (17, 3)`` (pixels, confidence) on ``points (17, 3)``: None, or
+    ``(camera_T_... as ref_T_c (4, 4), inliers, -median error px)`` (larger is better)."""
+    conf = np.nan_to_num(keypoints[:, 2])
+    use = (conf >= MIN_CONFIDENCE) & np.isfinite(points).all(-1) & np.isfinite(keypoints[:, :2]).all(-1)
+    if use.sum() < MIN_POINTS:
+        return None
+    found, rvec, tvec, inliers = cv2.solvePnPRansac(
+        points[use], keypoints[use, :2].astype(np.float64), K, None, reprojectionError=12.0, flags=cv2.SOLVEPNP_SQPNP
+    )  # fmt: skip
+    if not found or inliers is None or len(inliers) < MIN_POINTS:
+        return None
+    projected, _ = cv2.projectPoints(points[use], rvec, tvec, K, None)
+    error = float(np.median(np.linalg.norm(projected[:, 0] - keypoints[use, :2], axis=1)))
+    return np.linalg.inv(_rigid(cv2.Rodrigues(rvec)[0], tvec[:, 0])), len(inliers), -error
 
 
 def fuse_bodies(views: list[ViewEstimate], ref_T_c: np.ndarray, known: np.ndarray) -> ViewEstimate:
@@ -363,3 +391,43 @@ def view_bodies(model: StateModel, body: BodyModel, initialiser: str, variant: s
             out[c] = p
     used = "regressor" if variant == "full" else f"regressor ({variant})"
     return out, used + (f"; PnP for {', '.join(fallback)} (the two disagreed)" if fallback else "")
+
+
+SWAP_THRESHOLD_FRACTION = 0.01
+"""RANSAC threshold of the views' essential matrices in the epipolar swap check, as a fraction of
+the larger image side of a camera's principal point box (2·max(cx, cy)): 19 px at 1920 px."""
+
+
+def view_swaps(model: StateModel) -> dict[int, np.ndarray]:
+    """Per static camera, ``(F_c,)`` the left/right labelling of each of its frames that fits
+    the other static cameras' epipolar geometry (:func:`mocapgraph.data_tools.geometry.epipolar.resolve_swaps`
+    on every state's keypoints of the views' common format): codes of
+    :data:`~mocapgraph.body.labelling.SWAP_KINDS`, -1 for frames without an observation.
+
+    Before any camera is placed, a view whose labels are swapped would place the body turned
+    around and its camera with it; the essential matrices of the views' pooled keypoints need
+    no body. Moving cameras (whose pairs have no single essential matrix) and cameras of
+    another keypoint format are left as detected; with fewer than two static cameras nothing
+    is checked."""
+    views = {c: model.view_keypoints(c) for c in range(model.num_cameras) if not model.cameras[c].moving}
+    views = {c: v for c, v in views.items() if v is not None}
+    formats = [fmt for _, fmt in views.values()]
+    out: dict[int, np.ndarray] = {}
+    if len(views) < 2:
+        return out
+    fmt = max(set(formats), key=formats.count)
+    cams = [c for c, (_, f) in views.items() if f == fmt]
+    if len(cams) < 2:
+        return out
+    x = np.stack([views[c][0][..., :2] for c in cams])
+    w = np.stack([np.nan_to_num(views[c][0][..., 2]) for c in cams])
+    Ks = np.stack([model.cameras[c].K for c in cams])
+    names = BODY_KEYPOINT_NAMES if fmt == "body" else get_format(fmt).names
+    threshold = SWAP_THRESHOLD_FRACTION * 2.0 * float(np.max(Ks[:, :2, 2]))
+    labels = resolve_swaps(x, w, Ks, names, threshold_px=threshold).labels  # (C, N) per state
+    for row, c in enumerate(cams):
+        codes = np.full(len(model.cameras[c].timestamps), -1, dtype=np.int8)
+        frames = model.camera_frames(c)
+        codes[frames] = labels[row, model.frame_state[c][frames]]
+        out[c] = codes
+    return out

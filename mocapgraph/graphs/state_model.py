@@ -24,7 +24,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
+from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
 from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.errors import MocapgraphError
@@ -42,6 +44,7 @@ class CameraInfo:
         moving: a pose per frame (True) or one for the capture (False).
         timestamps: ``(F,)`` seconds of its frames, increasing.
         frame_rate: Hz (``"closest"`` pairs frames within half a period).
+        focal_guessed: ``K``'s focal length is a guess (no calibration), not a measurement.
     """
 
     name: str
@@ -49,6 +52,7 @@ class CameraInfo:
     moving: bool
     timestamps: np.ndarray
     frame_rate: float
+    focal_guessed: bool = False
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -222,6 +226,22 @@ class StateModel:
         frame_state = [s if keep[c] else np.full_like(s, -1) for c, s in enumerate(self.frame_state)]
         return replace(self, frame_state=frame_state, states=states)
 
+    def relabelled(self, codes: dict[int, np.ndarray]) -> StateModel:
+        """The same model with camera ``c``'s observation at frame ``j`` relabelled by the swap
+        ``SWAP_KINDS[codes[c][j]]`` (:mod:`mocapgraph.body.labelling`; 0 or -1: as it is)."""
+        states = []
+        for obs in self.states:
+            out = []
+            for o in obs:
+                code = int(codes[o.camera][o.frame]) if o.camera in codes else 0
+                if code > 0:
+                    names = BODY_KEYPOINT_NAMES if o.fmt == "body" else get_format(o.fmt).names
+                    perm = swap_permutation(names, SWAP_KINDS[code])
+                    o = replace(o, observed=o.observed[perm], weights=o.weights[perm])
+                out.append(o)
+            states.append(out)
+        return replace(self, states=states)
+
     def with_moving(self, moving) -> StateModel:
         """The same model with camera ``c`` moving where ``moving[c]``."""
         return replace(self, cameras=[replace(cam, moving=bool(m)) for cam, m in zip(self.cameras, moving)])
@@ -284,6 +304,8 @@ class Estimate:
         cameras: per camera ``(F_c, 4, 4)`` world_T_camera at every frame (a static camera's the
             same at all; frames no solve touched keep their initial value).
         log: rows of the solver's log.
+        focal_log: ``(C,)`` per camera, the log of its focal length's ratio to the model's ``K``
+            (0: as given; see :func:`~mocapgraph.factors.keys.focal_key`).
     """
 
     roots: np.ndarray
@@ -291,14 +313,21 @@ class Estimate:
     shape: np.ndarray
     cameras: list[np.ndarray]
     log: list[dict] = field(default_factory=list)
+    focal_log: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.focal_log is None:
+            self.focal_log = np.zeros(len(self.cameras))
 
     def span(self, start: int, stop: int) -> Estimate:
         """The body states ``[start, stop)`` (cameras copied whole: they are indexed by frame)."""
-        return Estimate(self.roots[start:stop].copy(), self.poses[start:stop].copy(), self.shape.copy(), [c.copy() for c in self.cameras])
+        return Estimate(
+            self.roots[start:stop].copy(), self.poses[start:stop].copy(), self.shape.copy(), [c.copy() for c in self.cameras], focal_log=self.focal_log.copy()
+        )
 
     def transformed(self, A: np.ndarray) -> Estimate:
         """Everything moved by the rigid ``A (4, 4)`` (new world ← old world)."""
-        return Estimate(A @ self.roots, self.poses.copy(), self.shape.copy(), [A @ c for c in self.cameras], list(self.log))
+        return Estimate(A @ self.roots, self.poses.copy(), self.shape.copy(), [A @ c for c in self.cameras], list(self.log), self.focal_log.copy())
 
     @property
     def pose_vectors(self) -> np.ndarray:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -42,7 +42,7 @@ from mocapgraph.graphs.sync import SYNC_POLICIES
 from mocapgraph.pipelines.camera_priors import camera_priors
 from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import capture_state_model, detector_names
-from mocapgraph.pipelines.results import estimate_result, swap_notes
+from mocapgraph.pipelines.results import estimate_result, focal_notes, swap_notes
 from mocapgraph.priors.motion_windows import WINDOW
 from mocapgraph.progress import progress_bar
 
@@ -273,7 +273,7 @@ def resample(estimate: Estimate, times: np.ndarray, new_times: np.ndarray) -> Es
     roots[:, :3, 3] = np.stack([np.interp(t, times, estimate.roots[:, a, 3]) for a in range(3)], 1)
     flat = estimate.pose_vectors
     poses = np.stack([np.interp(t, times, flat[:, d]) for d in range(flat.shape[1])], 1).reshape(len(t), -1, 3)
-    return Estimate(roots, poses, estimate.shape.copy(), [c.copy() for c in estimate.cameras], list(estimate.log))
+    return Estimate(roots, poses, estimate.shape.copy(), [c.copy() for c in estimate.cameras], list(estimate.log), estimate.focal_log.copy())
 
 
 def sequence_graph(bg: BodyGraph, priors: CameraPriors | None, estimate: Estimate, windows: list[int]) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
@@ -341,7 +341,8 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     log.info("aircap: per-frame, %d body states, cameras %s", len(times), options.cameras)
     n = len(times)
     start = Estimate(np.tile(np.eye(4), (n, 1, 1)), np.zeros((n, NUM_JOINTS - 1, 3)), body.default_shape.copy(), cameras)
-    per_frame = BodyGraph(model, body, options.graph, learned=learned, fixed_cameras=fixed, fixed_shape=body.default_shape)
+    # the focal lengths, where estimated, are the whole sequence's: the per-frame pass holds them
+    per_frame = BodyGraph(model, body, replace(options.graph, focal="fixed"), learned=learned, fixed_cameras=fixed, fixed_shape=body.default_shape)
     estimate = solve_per_frame(PerFrameTask(per_frame, priors, start, positions, yaws, options.per_frame_iterations), options.workers)
     per_frame_seconds = time.perf_counter() - start_time
     windows: list[int] = []
@@ -378,8 +379,9 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     if detections.min() == 0:
         notes.append(f"{int((detections == 0).sum())} of {len(times)} body states have no detection near them: flagged unconstrained")
         log.info("aircap: %s", notes[-1])
-    swaps = (bg if options.mode == "sequence" else per_frame).relabelled(estimate)
-    notes += swap_notes(model.names, swaps)
+    last = bg if options.mode == "sequence" else per_frame
+    swaps = last.relabelled(estimate)
+    notes += swap_notes(model.names, swaps) + focal_notes(model, last.focal_lengths(estimate))
     result = estimate_result(
         "aircap", capture, model, body, estimate, "capture", options_parameters(options), capture_label, cameras=sorted(tracks), all_frames=True,
         swaps=swaps,
@@ -389,7 +391,7 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
             bg = BodyGraph(model, body, options.graph, learned=learned, fixed_cameras=fixed)
             graph, values = sequence_graph(bg, priors, estimate, windows)
         result.covariances.update(bg.covariances(graph, values, estimate, cameras=False))
-    result.parameters.update(seconds=round(seconds, 3), per_frame_seconds=round(per_frame_seconds, 3), notes=notes)
+    result.parameters.update(seconds=round(seconds, 3), per_frame_seconds=round(per_frame_seconds, 3), notes=notes, focal_px=last.focal_lengths(estimate))
     return result
 
 

@@ -28,11 +28,11 @@ from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import PER_FRAME_CAMERA, Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions
-from mocapgraph.graphs.initialisation import INITIALISERS, fuse_bodies, fused_shape, relative_cameras, view_bodies
+from mocapgraph.graphs.initialisation import INITIALISERS, fuse_bodies, fused_shape, relative_cameras, view_bodies, view_swaps
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate
 from mocapgraph.pipelines.observations import capture_state_model
-from mocapgraph.pipelines.results import estimate_result, swap_notes
+from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, swap_notes
 
 log = logging.getLogger(__name__)
 
@@ -76,7 +76,9 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
         )
     # Relative to camera 1 every camera moves, unless both are static.
     reference_moves = full.cameras[0].moving
-    model = full.select(np.flatnonzero(keep)).with_moving([cam.moving or reference_moves for cam in full.cameras])
+    model = full.select(np.flatnonzero(keep))
+    before = view_swaps(model) if options.graph.swaps else {}  # on the cameras as captured: static pairs
+    model = model.relabelled(before).with_moving([cam.moving or reference_moves for cam in full.cameras])
     notes = list(capture.notes)
     if (~keep).any():
         notes.append(f"{int((~keep).sum())} of {len(keep)} frames left out: total keypoint confidence below {options.min_confidence}")
@@ -106,8 +108,8 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
         values = solved.values
         estimate = bg.read(values, estimate)
         estimate.log = list(solved.log)
-        swaps = bg.relabelled(estimate)
-        notes += swap_notes(model.names, swaps)
+        swaps = combined_swaps(model, before, bg.relabelled(estimate))
+        notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate))
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
     result = estimate_result(
@@ -117,7 +119,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     if options.covariances and graph is not None:
         result.covariances.update(bg.covariances(graph, values, estimate))
     result = _with_left_out(result, full.times, keep)
-    result.parameters.update(initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes)
+    result.parameters.update(focal_px=bg.focal_lengths(estimate), initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes)
     return result
 
 

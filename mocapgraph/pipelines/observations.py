@@ -23,7 +23,12 @@ def detector_names(capture: Capture, detectors: tuple[str, ...] | None = None) -
 
 
 def camera_infos(capture: Capture) -> list[CameraInfo]:
-    return [CameraInfo(cam.name, np.asarray(cam.K, dtype=float), cam.moving, cam.timestamps, cam.frame_rate) for cam in capture.cameras]
+    """The cameras as the graphs see them; a camera's focal length is a guess when the capture's
+    import said so (``metadata.imported.guessed_intrinsics``)."""
+    guessed = set(capture.metadata.get("imported", {}).get("guessed_intrinsics", []))
+    return [
+        CameraInfo(cam.name, np.asarray(cam.K, dtype=float), cam.moving, cam.timestamps, cam.frame_rate, cam.name in guessed) for cam in capture.cameras
+    ]
 
 
 def capture_state_model(

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapgraph.body.labelling import SWAP_KINDS
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS, then
 from mocapgraph.body.model import BodyModel
+from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import CameraTrack, Result
 from mocapgraph.graphs.state_model import Estimate, StateModel
@@ -54,6 +56,22 @@ def estimate_result(
     return result
 
 
+def combined_swaps(model: StateModel, before: dict[int, np.ndarray], solved: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """Per camera, ``(F_c,)`` the labelling of each frame from the pre-pass that relabelled the
+    model (``before``) followed by the solve's (``solved``, on the relabelled model), as codes of
+    :data:`~mocapgraph.body.labelling.SWAP_KINDS` (:func:`~mocapgraph.body.labelling.then`)."""
+    fmt = model.formats[0]
+    names = BODY_KEYPOINT_NAMES if fmt == "body" else get_format(fmt).names
+    out = {}
+    for c, codes in solved.items():
+        first = before.get(c)
+        if first is None:
+            out[c] = codes
+            continue
+        out[c] = np.array([then(names, int(a), int(b)) if b >= 0 else -1 for a, b in zip(first, codes)], dtype=np.int8)
+    return out
+
+
 def swap_notes(names: list[str], swaps: dict[int, np.ndarray]) -> list[str]:
     """One note per camera whose detections the solve relabelled: how many of its frames, of which kind."""
     notes = []
@@ -65,3 +83,9 @@ def swap_notes(names: list[str], swaps: dict[int, np.ndarray]) -> list[str]:
             kinds = ", ".join(f"{n} {kind}" for kind, n in counts.items() if n)
             notes.append(f"camera {names[c]}: left/right labels undone in {total} of {int(solved.sum())} frames ({kinds})")
     return notes
+
+
+def focal_notes(model: StateModel, focals: dict[str, float]) -> list[str]:
+    """One note per camera whose focal length the solve estimated: the estimate against the given one."""
+    given = {cam.name: float(cam.K[0, 0]) for cam in model.cameras}
+    return [f"camera {name}: focal length estimated {f:.0f} px (given {given[name]:.0f} px, {100 * (f / given[name] - 1):+.0f} %)" for name, f in focals.items()]

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -46,12 +46,13 @@ from mocapgraph.graphs.initialisation import (
     relative_cameras,
     rotation_mean,
     view_bodies,
+    view_swaps,
 )
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import capture_state_model
-from mocapgraph.pipelines.results import estimate_result, swap_notes
+from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, swap_notes
 from mocapgraph.priors.motion_windows import WINDOW
 
 log = logging.getLogger(__name__)
@@ -146,7 +147,10 @@ def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
     t0 = time.perf_counter()
     o = task.options
     n = task.model.num_states
-    bg = BodyGraph(task.model, load_body_model(), o.graph, learned=LearnedPriors.load(o.graph.pose_prior, o.motion_prior if n == WINDOW else "none"))
+    # A chunk is too short to tell a camera's focal length from its distance: focal lengths are
+    # estimated in the final pass over the whole sequence only.
+    graph_options = replace(o.graph, focal="fixed")
+    bg = BodyGraph(task.model, load_body_model(), graph_options, learned=LearnedPriors.load(o.graph.pose_prior, o.motion_prior if n == WINDOW else "none"))
     graph, values = sequence_graph(bg, task.start, o.gauge_sigmas)
     body_keys = [root_key(i) for i in range(n)] + [pose_key(i) for i in range(n)] + [shape_key()]
     phases = [
@@ -156,6 +160,9 @@ def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
     ]
     ordering = bg.time_ordering(values)
     for k, (_, keys) in enumerate(phases):
+        # Labels are re-decided only once the body is free: against the initial mean body (held
+        # in the first two phases) a camera seen from the side "fits" swapped as often as not.
+        bg.relabel(k == len(phases) - 1)
         # The first phase anneals from L2 to Geman-McClure; the later ones start near the solution
         # and stay robust (an L2 stage each cost a third of a chunk's solves for nothing, measured).
         stages = bg.stages(o.chunk_iterations, ordering)[0 if k == 0 else 1 :]
@@ -199,7 +206,7 @@ def stitch(body: BodyModel, model: StateModel, parts: list[tuple[int, int, Estim
     the right block onto the left by the heading and translation that best align their shared
     state's joints and the static cameras both blocks estimated; the shared state keeps the left
     block's body, a moving camera the right block's frames after it, a static camera the chordal
-    mean of both weighted by their states.
+    mean of both weighted by their states (the shape and focal lengths too).
     """
     static = [c for c in range(model.num_cameras) if not model.cameras[c].moving]
     blocks = list(parts)
@@ -221,7 +228,8 @@ def stitch(body: BodyModel, model: StateModel, parts: list[tuple[int, int, Estim
                 cameras[c][:, :3, :3] = rotation_mean(np.stack([left.cameras[c][0, :3, :3], moved.cameras[c][0, :3, :3]]), [wl, wr])
                 cameras[c][:, :3, 3] = (wl * left.cameras[c][0, :3, 3] + wr * moved.cameras[c][0, :3, 3]) / (wl + wr)
             shape = (wl * left.shape + wr * moved.shape) / (wl + wr)
-            est = Estimate(np.concatenate([left.roots, moved.roots[1:]]), np.concatenate([left.poses, moved.poses[1:]]), shape, cameras)
+            focal_log = (wl * left.focal_log + wr * moved.focal_log) / (wl + wr)
+            est = Estimate(np.concatenate([left.roots, moved.roots[1:]]), np.concatenate([left.poses, moved.poses[1:]]), shape, cameras, focal_log=focal_log)
             merged.append((a0, b1, est))
         if len(blocks) % 2:
             merged.append(blocks[-1])
@@ -241,14 +249,18 @@ def _reference_camera(capture: Capture, seen: list[bool]) -> int:
     return seen.index(True)
 
 
-def initial_estimate(model: StateModel, body: BodyModel, options: SmartmocapOptions, reference: int, notes: list[str]) -> tuple[Estimate, list[bool], str]:
+def initial_estimate(
+    model: StateModel, body: BodyModel, options: SmartmocapOptions, reference: int, notes: list[str]
+) -> tuple[Estimate, list[bool], str, dict[int, np.ndarray]]:
     """Body and cameras in SmartMocap's world from the views; which cameras could be placed;
-    which initialiser gave the views."""
+    which initialiser gave the views; per moving camera placed against the static ones, the
+    labelling (codes of :data:`~mocapgraph.body.labelling.SWAP_KINDS`) of each of its frames."""
     views, used = view_bodies(model, body, options.initialiser)
     notes.append(f"initialised from the {used}")
     moving = [cam.moving for cam in model.cameras]
     ref_T_c, known = relative_cameras(views, moving, reference)
-    ref_T_c, known = moving_cameras_from_static(coco_views(model), model.camera_matrices(), ref_T_c, known, moving)
+    ref_T_c, known, state_labels = moving_cameras_from_static(coco_views(model), model.camera_matrices(), ref_T_c, known, moving)
+    labels = {c: np.where(model.frame_state[c] >= 0, codes[model.frame_state[c]], -1).astype(np.int8) for c, codes in state_labels.items()}
     placed = [bool(known[c].any()) for c in range(model.num_cameras)]
     fused = fuse_bodies(views, ref_T_c, known)
     shape = fused_shape(body, fused)
@@ -260,7 +272,7 @@ def initial_estimate(model: StateModel, body: BodyModel, options: SmartmocapOpti
         )
     world_T_ref = np.linalg.inv(ground.ref_T_world)
     cameras = [model.frames_from_states(c, world_T_ref @ ref_T_c[c]) for c in range(model.num_cameras)]
-    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, cameras), placed, used
+    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, cameras), placed, used, labels
 
 
 def _degeneracy_notes(model: StateModel, placed: list[bool]) -> list[str]:
@@ -285,7 +297,13 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         raise MocapgraphError(f"capture {capture.name!r}: no camera has detections")
     reference = _reference_camera(capture, seen)
     model = capture_state_model(capture, "closest", detectors=options.detectors, reference=reference)
-    start, placed, used = initial_estimate(model, body, options, reference, notes)
+    # Swapped views are undone before they place the cameras, by the views' epipolar geometry.
+    before = view_swaps(model) if options.graph.swaps else {}
+    model = model.relabelled(before)
+    start, placed, used, moving_labels = initial_estimate(model, body, options, reference, notes)
+    if options.graph.swaps:
+        before.update(moving_labels)
+        model = model.relabelled(moving_labels)
     for c, name in enumerate(model.names):
         if not placed[c]:
             notes.append(f"camera {name}: never saw the person together with the reference camera {model.names[reference]}; not estimated")
@@ -311,8 +329,8 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     )  # fmt: skip
     estimate = bg.read(solved_final.values, stitched)
     estimate.log = list(solved_final.log)
-    swaps = bg.relabelled(estimate)
-    notes += swap_notes(model.names, swaps)
+    swaps = combined_swaps(model, before, bg.relabelled(estimate))
+    notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate))
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
     result = estimate_result(
@@ -321,7 +339,8 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     if options.covariances:
         result.covariances.update(bg.covariances(graph, solved_final.values, estimate))
     result.parameters.update(
-        initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes
+        initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes,
+        focal_px=bg.focal_lengths(estimate),
     )
     return result
 
