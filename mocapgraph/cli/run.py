@@ -52,12 +52,20 @@ def add_parsers(subparsers) -> None:
 
     run = group(subparsers, "run", "run a pipeline on a capture", "pipeline")
 
-    baseline = command(run, "baseline", "calibrated-camera triangulation (DLT + RANSAC), the reference")
+    baseline = command(
+        run, "baseline", "calibrated-camera triangulation (DLT + RANSAC), the reference; with --uncalibrated, static cameras "
+        "self-calibrated from the keypoints (essential matrices, swap check, bundle adjustment)",
+    )  # fmt: skip
     _capture_args(baseline)
     flags = OptionFlags(baseline, BaselineOptions())
     flags.add("detector", "detector name", unset="the first one every camera has")
-    flags.add("threshold_px", "RANSAC inlier threshold in pixels")
-    flags.add("seed", "seed of RANSAC's pair sampling")
+    flags.add("threshold_px", "RANSAC inlier threshold in pixels (with --uncalibrated also of the essential matrices and PnP)")
+    flags.add("seed", "seed of RANSAC's sampling")
+    flags.add("uncalibrated", "estimate the static cameras' poses from the keypoints (the capture's intrinsics are used, its extrinsics not)")
+    flags.add("self_calibration.height_m", "--uncalibrated: the person's standing height assumed for the metric scale, metres")
+    flags.add("self_calibration.swap_check", "--uncalibrated: keep the detectors' left/right labels as they are")
+    flags.add("self_calibration.gm_sigma_px", "--uncalibrated: Geman-McClure scale of the bundle adjustment in pixels")
+    flags.add("self_calibration.min_confidence", "--uncalibrated: keypoints below this confidence are not used")
 
     aircap = command(run, "aircap", "UAV cameras with GPS/IMU: body and cameras from keypoints (AirCap)")
     _capture_args(aircap)

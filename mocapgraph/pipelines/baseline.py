@@ -5,6 +5,9 @@ with RANSAC over views (the geometry is ``data_tools.geometry.triangulation``; h
 cameras are put on one clock, undistorted and batched). It estimates 3D keypoints of the detector's
 format, not a body, so the result's joints are NaN and ``eval`` scores its keypoints.
 
+With ``uncalibrated=True`` (``run baseline --uncalibrated``) the cameras' poses are not read but
+estimated from the keypoints: :mod:`mocapgraph.pipelines.uncalibrated_baseline`.
+
 Conventions (``/work/shared/DESIGN.md``): world points in metres, in the capture's world frame;
 timestamps in seconds; camera poses ``world_T_camera`` (OpenCV camera, +z forward).
 """
@@ -12,7 +15,7 @@ timestamps in seconds; camera poses ``world_T_camera`` (OpenCV camera, +z forwar
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -29,6 +32,8 @@ from mocapgraph.data_tools.geometry.triangulation import (
 from mocapgraph.data_tools.io.capture import Camera, Capture
 from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.pipelines import uncalibrated_baseline
+from mocapgraph.pipelines.uncalibrated_baseline import UncalibratedOptions, run_uncalibrated_baseline
 
 log = logging.getLogger(__name__)
 
@@ -66,18 +71,25 @@ class BaselineOptions:
     detector: str | None = None  # default: the first detector every camera has
     threshold_px: float = DEFAULT_THRESHOLD_PX  # RANSAC inlier threshold
     seed: int = 0  # RANSAC's pair sampling
+    uncalibrated: bool = False  # estimate the static cameras' poses from the keypoints instead of reading them
+    self_calibration: UncalibratedOptions = field(default_factory=UncalibratedOptions)  # used with uncalibrated
 
 
 def run_baseline(capture: Capture, options: BaselineOptions | None = None, capture_label: str = "") -> Result:
     """Triangulate every frame from the capture's calibrated cameras (the others are skipped, and
-    the result's parameters say which); nothing written."""
+    the result's parameters say which), or with ``options.uncalibrated`` self-calibrate them
+    (:func:`~mocapgraph.pipelines.uncalibrated_baseline.run_uncalibrated_baseline`); nothing written."""
     options = options or BaselineOptions()
+    if options.uncalibrated:
+        return run_uncalibrated_baseline(
+            capture, options.self_calibration, capture_label, detector=options.detector, threshold_px=options.threshold_px, seed=options.seed
+        )
     calibrated = [cam for cam in capture.cameras if cam.extrinsics is not None]
     skipped = [cam.name for cam in capture.cameras if cam.extrinsics is None]
     if len(calibrated) < 2:
         raise MocapgraphError(
             f"capture {capture.name!r}: the baseline needs at least 2 calibrated cameras, found "
-            f"{len(calibrated)} (uncalibrated: {', '.join(skipped) or 'none'})"
+            f"{len(calibrated)} (uncalibrated: {', '.join(skipped) or 'none'}); --uncalibrated estimates static cameras' poses from the keypoints"
         )
     if skipped:
         log.info("baseline: skipping uncalibrated cameras %s", ", ".join(skipped))
@@ -94,7 +106,7 @@ def run_baseline(capture: Capture, options: BaselineOptions | None = None, captu
         keypoint_format=tri.format,
         flags={"num_views": tri.inliers.any(axis=2).sum(axis=1), "points_triangulated": known.sum(axis=1)},
         parameters={
-            **options_parameters(options), "detector": tri.detector, "threshold_px": float(options.threshold_px),
+            **options_parameters(replace(options, self_calibration=None)), "detector": tri.detector, "threshold_px": float(options.threshold_px),
             "cameras": list(tri.cameras), "skipped_cameras": skipped, "triangulated_share": float(known.mean()),
             "median_reprojection_error_px": float(np.nanmedian(tri.reprojection_error_px)) if known.any() else float("nan"),
         },
@@ -104,6 +116,8 @@ def run_baseline(capture: Capture, options: BaselineOptions | None = None, captu
 def summary(result: Result) -> str:
     """The line ``run baseline`` prints."""
     p = result.parameters
+    if p.get("uncalibrated"):
+        return uncalibrated_baseline.summary(result)
     skipped = f"baseline: skipping uncalibrated cameras {', '.join(p['skipped_cameras'])}\n" if p["skipped_cameras"] else ""
     return (
         f"{skipped}baseline: {len(result.timestamps)} frames from {len(p['cameras'])} cameras ({p['detector']}, {result.keypoint_format}); "

@@ -40,7 +40,16 @@ import numpy as np
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.body.skeleton import JOINT_NAMES
-from mocapgraph.data_tools.geometry.epipolar import PairGeometry, apply_labels, pair_geometries, resolve_swaps
+from mocapgraph.data_tools.geometry.epipolar import (
+    ANATOMY_MARGIN,
+    MIN_ANATOMY_PAIRS,
+    PairGeometry,
+    absolute_labels,
+    anatomy_scores,
+    apply_labels,
+    pair_geometries,
+    resolve_swaps,
+)
 from mocapgraph.data_tools.geometry.triangulation import DEFAULT_THRESHOLD_PX, projection_matrix, triangulate_ransac
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import CameraTrack, Result, options_parameters
@@ -368,9 +377,11 @@ def _middle(points: np.ndarray, names: tuple[str, ...], part: str) -> np.ndarray
 def body_frame(points: np.ndarray, fmt: str, height_m: float) -> BodyFrame:
     """A metric, Z-up world under the person, from their triangulated keypoints ``(N, K, 3)``.
 
-    - **Up**: the mean direction from the lower ankle to the eyes' midpoint over the frames;
-      replaced by the normal of the plane through the lower ankle of each frame when those ground
-      contacts spread at least :data:`MIN_GROUND_SPREAD_M` both ways and the plane lies within
+    - **Up**: the mean direction from the lower ankle to the shoulders' midpoint over the frames
+      (the stance foot stands under the shoulders: on the simulator's walks, turns and stands
+      within 2° of the vertical, where the eyes, ahead of the body's line, lean 3–6°); replaced
+      by the normal of the plane through the lower ankle of each frame when those ground contacts
+      spread at least :data:`MIN_GROUND_SPREAD_M` both ways and the plane lies within
       :data:`MAX_GROUND_TILT_DEG` of the body's axis (on a treadmill, or standing, they do not).
     - **Scale**: the median height of the eyes above the lower ankle is
       ``EYE_HEIGHT_FRACTION − ANKLE_HEIGHT_FRACTION`` of the stature, set to ``height_m``; for a
@@ -382,18 +393,22 @@ def body_frame(points: np.ndarray, fmt: str, height_m: float) -> BodyFrame:
     """
     names = get_format(fmt).names
     eyes = _middle(points, names, "eye")
+    shoulders = _middle(points, names, "shoulder")
     ankles = np.stack([points[:, names.index("left_ankle")], points[:, names.index("right_ankle")]], axis=1)
     hips = _middle(points, names, "hip")
-    usable = np.isfinite(eyes).all(-1) & np.isfinite(ankles).all(-1).any(-1)
+    usable = np.isfinite(eyes).all(-1) & np.isfinite(shoulders).all(-1) & np.isfinite(ankles).all(-1).any(-1)
     if usable.sum() < 3:
-        raise MocapgraphError(f"the reconstruction has eyes and an ankle in {int(usable.sum())} frames; the world's scale and vertical need at least 3")
-    # The body's axis first (each ankle's own direction, then the lower one along their mean).
-    axis = _unit(np.nanmean(_unit(eyes[usable, None] - ankles[usable]).reshape(-1, 3), axis=0))
+        raise MocapgraphError(
+            f"the reconstruction has eyes, shoulders and an ankle in {int(usable.sum())} frames; the world's scale and vertical need at least 3"
+        )
 
     def lower_ankles(up: np.ndarray) -> np.ndarray:
         height = np.where(np.isfinite(ankles).all(-1), ankles @ up, np.inf)
         return np.take_along_axis(ankles, np.argmin(height, axis=1)[:, None, None], axis=1)[:, 0]
 
+    # Which ankle is lower needs a vertical: the one from both ankles' directions first.
+    rough = _unit(np.nanmean(_unit(shoulders[usable, None] - ankles[usable]).reshape(-1, 3), axis=0))
+    axis = _unit(np.mean(_unit(shoulders[usable] - lower_ankles(rough)[usable]), axis=0))
     feet = lower_ankles(axis)[usable]
     stature = float(np.median((eyes[usable] - feet) @ axis)) / (EYE_HEIGHT_FRACTION - ANKLE_HEIGHT_FRACTION)
     if not stature > 0:
@@ -476,6 +491,20 @@ def run_uncalibrated_baseline(
         pairs = pair_geometries(rig.x, rig.w, rig.Ks, threshold_px=threshold_px)
     x, w = apply_labels(rig.x, labels, names), apply_labels(rig.w, labels, names)
     poses, points, gauge = initial_reconstruction(x, w, rig.Ks, pairs, rig.names, threshold_px, seed)
+    if options.swap_check:
+        # The skeleton from every camera at once decides each frame's absolute side far more
+        # often than pairs of cameras could (a nose or an ear seen by any two of them).
+        # As with pairs, two cameras alone can agree on the other side's guessed points.
+        seen = (rig.w > 0).any(axis=-1)
+        scores = anatomy_scores(points, names)
+        views = seen.sum(axis=0) >= MIN_ANATOMY_PAIRS + 1
+        decided = {kind: views & (np.abs(np.nan_to_num(score)) >= ANATOMY_MARGIN[kind]) for kind, score in scores.items()}
+        absolute = absolute_labels(labels, seen, scores, decided)
+        if not np.array_equal(absolute, labels):
+            log.info("uncalibrated baseline: the skeleton turned the labels of %d frames", int(np.any(absolute != labels, axis=0).sum()))
+            labels = absolute
+            x, w = apply_labels(rig.x, labels, names), apply_labels(rig.w, labels, names)
+            points = _triangulate(poses, x, w, rig.Ks, threshold_px, seed)
     poses, points, solve_log = bundle_adjust(x, w, rig.Ks, poses, points, gauge, options.gm_sigma_px, options.max_iterations)
     errors = reprojection_errors(x, w, rig.Ks, poses, points)
     frame = body_frame(points, rig.fmt, options.height_m)

@@ -27,6 +27,7 @@ A relative pose ``(R, t)`` of cameras ``a, b`` maps camera ``a``'s coordinates t
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -45,6 +46,13 @@ on a handful of points of one or two frames would fit their noise)."""
 RANSAC_CONFIDENCE = 0.999
 RANSAC_MAX_ITERATIONS = 2000
 
+ESSENTIAL_ESTIMATORS = (cv2.USAC_ACCURATE, cv2.RANSAC, cv2.LMEDS)
+"""Robust estimators whose essential matrices :func:`relative_pose` refines and compares. Each
+deterministic for the same input (OpenCV seeds them itself). On a person between two cameras
+that face each other, the inlier count of a loose threshold barely tells the true pose from one
+120° off (3302 against 3271 of 3392 correspondences), and LO-RANSAC took the wrong one; after
+refinement, the truncated squared Sampson distance tells them apart (23 against 34 px²)."""
+
 REFINE_SCALE_DIVISOR = 5.0
 """The refinement's robust scale is the RANSAC threshold over this (3 px for 15 px): near the
 keypoints' noise, so the inliers count fully and the points near the threshold less."""
@@ -55,6 +63,14 @@ SWAP_NATS = 2.0
 SWITCH_NATS = 4.0
 """Cost of a change of labelling from one frame to the next, nats: detectors swap in runs (a
 tracker carries a wrong reading on), so one noisy frame should not flip a run or start one."""
+
+ANATOMY_MARGIN = {"body": 0.3, "legs": 0.2, "arms": 0.2}
+"""How far from 0 a frame's :func:`anatomy_scores` must lie to decide its labels' absolute
+side; nearer, the labelling with fewer swaps is kept."""
+
+MIN_ANATOMY_PAIRS = 2
+"""Fewest camera pairs whose skeletons must be scored for the body to decide a frame's labels:
+one pair's skeleton can be the other side's points guessed by a detector that sees the back."""
 
 _FLOOR_PX2 = 0.25
 """Added to a mean squared Sampson distance (px²) before its logarithm: below a quarter of a
@@ -178,12 +194,27 @@ def refine_pose(R, t, x_a, x_b, K_a, K_b, *, scale_px: float) -> tuple[np.ndarra
     return model(solution.x)
 
 
-def relative_pose(x_a, x_b, K_a, K_b, *, threshold_px: float, a: int = 0, b: int = 1) -> PairGeometry | None:
+def _estimates(na: np.ndarray, nb: np.ndarray, threshold: float):
+    """``(R, t, inliers)`` of every essential matrix the :data:`ESSENTIAL_ESTIMATORS` find for
+    normalised correspondences ``na, nb (M, 2)`` (``threshold`` in normalised units), each posed
+    in front of both cameras by ``recoverPose``."""
+    for method in ESSENTIAL_ESTIMATORS:
+        E, mask = cv2.findEssentialMat(na, nb, np.eye(3), method=method, prob=RANSAC_CONFIDENCE, threshold=threshold, maxIters=RANSAC_MAX_ITERATIONS)
+        if E is None or mask is None:
+            continue
+        # A five-point sample can give several solutions, stacked.
+        for k in range(E.shape[0] // 3):
+            _, R, t, inlier = cv2.recoverPose(E[3 * k : 3 * k + 3], na, nb, np.eye(3), mask=mask.copy())
+            yield R, t, inlier.ravel() > 0
+
+
+def relative_pose(x_a, x_b, K_a, K_b, *, threshold_px: float, a: int = 0, b: int = 1, start: PairGeometry | None = None) -> PairGeometry | None:
     """The epipolar geometry of two cameras from correspondences.
 
-    OpenCV's LO-RANSAC (``USAC_ACCURATE``) finds the essential matrix on normalised coordinates
-    and ``recoverPose`` its pose in front of both cameras; :func:`refine_pose` then fits that
-    pose to all the inliers; the inliers are counted again under the refined pose.
+    Each of :data:`ESSENTIAL_ESTIMATORS` finds essential matrices on normalised coordinates,
+    ``recoverPose`` their poses in front of both cameras and :func:`refine_pose` fits each to its
+    inliers; the pose of least mean truncated squared Sampson distance over all correspondences
+    wins, and its inliers are counted again.
 
     Args:
         x_a, x_b: ``(M, 2)`` undistorted pixels of the same points in cameras ``a`` and ``b``
@@ -192,6 +223,8 @@ def relative_pose(x_a, x_b, K_a, K_b, *, threshold_px: float, a: int = 0, b: int
         threshold_px: RANSAC inlier threshold on the distance to the epipolar line, pixels (taken
             at the pair's mean focal length in normalised coordinates).
         a, b: the camera indices to record.
+        start: a pose of the pair from nearly the same correspondences (the previous round of
+            :func:`resolve_swaps`): refined from its inliers instead of searched for anew.
 
     Returns:
         A :class:`PairGeometry`, or None with fewer than :data:`MIN_CORRESPONDENCES`
@@ -206,20 +239,19 @@ def relative_pose(x_a, x_b, K_a, K_b, *, threshold_px: float, a: int = 0, b: int
     if M < MIN_CORRESPONDENCES:
         return None
     focal = float(np.mean([K_a[0, 0], K_a[1, 1], K_b[0, 0], K_b[1, 1]]))
-    # USAC seeds its sampler with a fixed state (UsacParams.randomGeneratorState): the same input gives the same model.
-    E, mask = cv2.findEssentialMat(
-        na, nb, np.eye(3), method=cv2.USAC_ACCURATE, prob=RANSAC_CONFIDENCE, threshold=threshold_px / focal, maxIters=RANSAC_MAX_ITERATIONS
-    )
-    if E is None or E.shape[0] < 3:
+    best, best_cost = None, np.inf
+    for R, t, inlier in [(start.R, start.t, sampson_px(start.F, x_a, x_b) < threshold_px)] if start is not None else _estimates(na, nb, threshold_px / focal):
+        if inlier.sum() < MIN_CORRESPONDENCES:
+            continue
+        R, t = refine_pose(R, t, x_a[inlier], x_b[inlier], K_a, K_b, scale_px=threshold_px / REFINE_SCALE_DIVISOR)
+        F = fundamental_matrix(_skew(t) @ R, K_a, K_b)
+        cost = float(np.mean(np.minimum(sampson_px(F, x_a, x_b), threshold_px) ** 2))
+        if cost < best_cost:
+            best, best_cost = (R, t, F), cost
+    if best is None:
         return None
-    # Degenerate samples can give several solutions stacked; the best comes first.
-    _, R, t, mask = cv2.recoverPose(E[:3], na, nb, np.eye(3), mask=mask.copy())
-    inlier = mask.ravel() > 0
-    if inlier.sum() < MIN_CORRESPONDENCES:
-        return None
-    R, t = refine_pose(R, t, x_a[inlier], x_b[inlier], K_a, K_b, scale_px=threshold_px / REFINE_SCALE_DIVISOR)
+    R, t, F = best
     E = _skew(t) @ R
-    F = fundamental_matrix(E, K_a, K_b)
     inlier = sampson_px(F, x_a, x_b) < threshold_px
     if inlier.sum() < MIN_CORRESPONDENCES:
         return None
@@ -240,16 +272,17 @@ def _check_rig(x, w, Ks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x, np.where(np.isfinite(x).all(-1), w, 0.0), Ks
 
 
-def pair_geometries(x, w, Ks, *, threshold_px: float) -> dict[tuple[int, int], PairGeometry]:
+def pair_geometries(x, w, Ks, *, threshold_px: float, previous: dict[tuple[int, int], PairGeometry] | None = None) -> dict[tuple[int, int], PairGeometry]:
     """:func:`relative_pose` of every pair ``a < b`` of a rig from all its frames' co-visible
-    keypoints (``w > 0`` in both); pairs without a geometry are left out."""
+    keypoints (``w > 0`` in both); pairs without a geometry are left out. ``previous``: the
+    pairs' geometries from nearly the same keypoints, to refine instead of searching anew."""
     x, w, Ks = _check_rig(x, w, Ks)
     C = len(x)
     out = {}
     for a in range(C):
         for b in range(a + 1, C):
             both = (w[a] > 0) & (w[b] > 0)
-            geometry = relative_pose(x[a][both], x[b][both], Ks[a], Ks[b], threshold_px=threshold_px, a=a, b=b)
+            geometry = relative_pose(x[a][both], x[b][both], Ks[a], Ks[b], threshold_px=threshold_px, a=a, b=b, start=(previous or {}).get((a, b)))
             if geometry is not None:
                 out[(a, b)] = geometry
     return out
@@ -267,51 +300,61 @@ def apply_labels(values, labels, names: Sequence[str]) -> np.ndarray:
     return out
 
 
-def swap_costs(
-    x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Sequence[str], labels=None, *, cap_px: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """How badly each labelling of each camera-frame fits the other cameras' epipolar geometry.
+def pair_tables(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Sequence[str], *, cap_px: float) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """Each pair's epipolar fit under every combination of the two cameras' labellings.
 
-    For camera ``c``, frame ``n`` and every kind of :data:`SWAP_KINDS`, ``c``'s points are
-    permuted by that swap and compared with every other camera's points of the frame (under
-    their current ``labels``) through the pair's fundamental matrix: ``m`` co-visible
-    correspondences with Sampson distances ``d`` (pixels), truncated at ``cap_px`` so that one
-    wrong point (an outlier, another person) cannot decide. The cost is the Gaussian negative
-    log-likelihood with the frame's noise unknown, maximised over it:
-    ``m/2 · log(mean(min(d, cap_px)²))`` nats (up to a constant). Its differences between
-    labellings are therefore ``m/2 · log`` of the ratio of their mean squared distances: a frame
-    whose points fit badly under every labelling (a side view, heavy noise) gives little evidence,
-    however large its distances. A permutation can change which points are co-visible, so every
-    kind is scored with the largest ``m`` of any kind.
-
-    Args:
-        x, w, Ks: the rig's arrays (module docstring), as detected.
-        pairs: from :func:`pair_geometries`; a pair without a geometry contributes nothing.
-        names: the format's point names (for the permutations).
-        labels: ``(C, N)`` current codes of the cameras' labellings, default all 0.
-        cap_px: truncation of the Sampson distance, pixels.
-
-    Returns:
-        ``nats (C, N, len(SWAP_KINDS))`` (NaN where fewer than :data:`MIN_SWAP_POINTS`
-        correspondences) and ``count (C, N, len(SWAP_KINDS))`` of the correspondences scored.
+    Returns, per pair ``(a, b)``, ``total (N, S, S)``: the sum over frame ``n``'s co-visible
+    correspondences of ``min(d, cap_px)²`` (``d`` the Sampson distance in pixels) with camera
+    ``a``'s points under swap ``SWAP_KINDS[i]`` and ``b``'s under ``SWAP_KINDS[j]`` at ``[n, i, j]``,
+    and ``count (N, S, S)`` of those correspondences (``S = len(SWAP_KINDS)``). Truncation keeps
+    one wrong point (an outlier, another person) from deciding.
     """
     x, w, Ks = _check_rig(x, w, Ks)
     C, N, K = w.shape
     if len(names) != K:
         raise MocapgraphError(f"names: {len(names)} point names for {K} keypoints")
-    labels = np.zeros((C, N), dtype=int) if labels is None else np.asarray(labels, dtype=int)
-    current_x, current_w = apply_labels(x, labels, names), apply_labels(w, labels, names)
     perms = [swap_permutation(names, kind) for kind in SWAP_KINDS]
+    S = len(perms)
+    tables = {}
+    for (a, b), geometry in pairs.items():
+        total, count = np.zeros((N, S, S)), np.zeros((N, S, S), dtype=int)
+        for i, pa in enumerate(perms):
+            for j, pb in enumerate(perms):
+                both = (w[a][:, pa] > 0) & (w[b][:, pb] > 0)
+                d = np.minimum(sampson_px(geometry.F, x[a][:, pa], x[b][:, pb]), cap_px)
+                total[:, i, j] = np.where(both, d**2, 0.0).sum(axis=1)
+                count[:, i, j] = both.sum(axis=1)
+        tables[(a, b)] = (total, count)
+    return tables
+
+
+def swap_costs(tables: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]], labels) -> tuple[np.ndarray, np.ndarray]:
+    """How badly each labelling of each camera-frame fits the other cameras' epipolar geometry.
+
+    For camera ``c``, frame ``n`` and every kind of :data:`SWAP_KINDS`, ``c``'s points under that
+    swap are compared with every other camera's under its current ``labels (C, N)`` (from
+    :func:`pair_tables`): ``m`` co-visible correspondences with truncated squared Sampson
+    distances. The cost is the Gaussian negative log-likelihood with the frame's noise unknown,
+    maximised over it: ``m/2 · log(mean(min(d, cap_px)²))`` nats (up to a constant). Its
+    differences between labellings are therefore ``m/2 · log`` of the ratio of their mean squared
+    distances: a frame whose points fit badly under every labelling (a side view, heavy noise)
+    gives little evidence, however large its distances. A permutation can change which points
+    are co-visible, so every kind is scored with the largest ``m`` of any kind.
+
+    Returns:
+        ``nats (C, N, len(SWAP_KINDS))`` (NaN where fewer than :data:`MIN_SWAP_POINTS`
+        correspondences) and ``count (C, N, len(SWAP_KINDS))`` of the correspondences scored.
+    """
+    labels = np.asarray(labels, dtype=int)
+    C, N = labels.shape
+    frames = np.arange(N)
     total = np.zeros((C, N, len(SWAP_KINDS)))
     count = np.zeros((C, N, len(SWAP_KINDS)), dtype=int)
-    for (a, b), geometry in pairs.items():
-        for c, other in ((a, b), (b, a)):
-            F = geometry.fundamental_from(c)
-            for code, perm in enumerate(perms):
-                both = (w[c][:, perm] > 0) & (current_w[other] > 0)
-                d = np.minimum(sampson_px(F, x[c][:, perm], current_x[other]), cap_px)
-                total[c, :, code] += np.where(both, d**2, 0.0).sum(axis=1)
-                count[c, :, code] += both.sum(axis=1)
+    for (a, b), (t, m) in tables.items():
+        total[a] += t[frames, :, labels[b]]
+        count[a] += m[frames, :, labels[b]]
+        total[b] += t[frames, labels[a], :]
+        count[b] += m[frames, labels[a], :]
     with np.errstate(invalid="ignore", divide="ignore"):
         nats = 0.5 * count.max(axis=-1, keepdims=True) * np.log(total / count + _FLOOR_PX2)
     return np.where(count >= MIN_SWAP_POINTS, nats, np.nan), count
@@ -361,6 +404,114 @@ def decide_labels(nats, kinds: Sequence[str] = SWAP_KINDS[1:], *, swap_nats: flo
     return codes[path]
 
 
+def triangulate_pair(geometry: PairGeometry, x_a, x_b, K_a, K_b) -> np.ndarray:
+    """``(…, 3)`` points in camera ``a``'s frame (its baseline to ``b`` of length 1) from
+    undistorted pixels ``x_a, x_b (…, 2)``: the midpoint of the two rays' closest points; NaN
+    where either pixel is NaN or the rays are parallel."""
+    ray_a = np.concatenate([normalised(x_a, K_a), np.ones(np.shape(x_a)[:-1] + (1,))], axis=-1)
+    ray_b = np.concatenate([normalised(x_b, K_b), np.ones(np.shape(x_b)[:-1] + (1,))], axis=-1) @ geometry.R  # Rᵀ ray_b
+    centre_b = -geometry.R.T @ geometry.t
+    # Closest points λ ray_a and centre_b + μ ray_b: a 2×2 linear system per point.
+    aa, bb, ab = np.sum(ray_a * ray_a, -1), np.sum(ray_b * ray_b, -1), np.sum(ray_a * ray_b, -1)
+    ca, cb = ray_a @ centre_b, ray_b @ centre_b
+    with np.errstate(invalid="ignore", divide="ignore"):
+        det = aa * bb - ab**2
+        lam = (ca * bb - cb * ab) / det
+        mu = (ca * ab - cb * aa) / det
+        return 0.5 * (lam[..., None] * ray_a + centre_b + mu[..., None] * ray_b)
+
+
+def _nanmean(vectors: list[np.ndarray]) -> np.ndarray:
+    """The mean of the finite ones among ``vectors`` (each ``(…, 3)``), NaN where none is."""
+    stacked = np.stack(vectors)
+    finite = np.isfinite(stacked).all(axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(finite, stacked, 0.0).sum(axis=0) / finite.sum(axis=0)
+
+
+def anatomy_scores(points, names: Sequence[str]) -> dict[str, np.ndarray]:
+    """How well the labels of a 3D skeleton ``points (…, K, 3)`` (any right-handed frame and
+    scale) fit a human body, per swap kind, positive where they do (NaN where points are missing):
+
+    - ``"body"``: ``det[l, u, f]`` of the person's left, up and forward directions as unit
+      vectors, right-handed for a person (about +0.9); with every label swapped it changes sign,
+      while the epipolar geometry cannot tell. Each direction is the mean of the cues the
+      skeleton has (a detector drops occluded points): left, the left minus the right shoulder,
+      hip, ear and eye; up, the mean of the head and shoulder points minus that of the hips,
+      knees and ankles; forward, the nose ahead of the ears' midpoint, the nose ahead of the
+      shoulders (across the up direction) and each foot's toe ahead of its heel.
+    - ``"legs"`` / ``"arms"``: how much nearer each knee (elbow) is to the hip (shoulder) of its
+      own side than to the other's, over the hips' (shoulders') width.
+    """
+    names = list(names)
+    p = np.asarray(points, dtype=float)
+    nan = np.full(p.shape[:-2] + (3,), np.nan)
+    pick = lambda n: p[..., names.index(n), :] if n in names else nan  # noqa: E731
+    sides = lambda part: (pick(f"left_{part}"), pick(f"right_{part}"))  # noqa: E731
+    with np.errstate(invalid="ignore", divide="ignore"):
+        left = _nanmean([_unit(a - b) for a, b in map(sides, ("shoulder", "hip", "ear", "eye"))])
+        upper = _nanmean([pick(n) for n in ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder")])
+        lower = _nanmean([pick(f"{s}_{part}") for part in ("hip", "knee", "ankle") for s in ("left", "right")])
+        up = _unit(upper - lower)
+        lean = pick("nose") - _nanmean(list(sides("shoulder")))
+        cues = [pick("nose") - 0.5 * np.sum(sides("ear"), axis=0), lean - np.sum(lean * up, axis=-1, keepdims=True) * up]
+        toe = "big_toe" if "left_big_toe" in names else "foot_index"
+        cues += [pick(f"{s}_{toe}") - pick(f"{s}_heel") for s in ("left", "right")]
+        forward = _nanmean([_unit(c) for c in cues])
+        scores = {"body": np.linalg.det(np.stack([_unit(left), up, _unit(forward)], axis=-1))}
+        for kind, (root, end) in {"legs": ("hip", "knee"), "arms": ("shoulder", "elbow")}.items():
+            (l_root, r_root), (l_end, r_end) = sides(root), sides(end)
+            crossed = np.linalg.norm(l_end - r_root, axis=-1) + np.linalg.norm(r_end - l_root, axis=-1)
+            own = np.linalg.norm(l_end - l_root, axis=-1) + np.linalg.norm(r_end - r_root, axis=-1)
+            scores[kind] = (crossed - own) / np.linalg.norm(l_root - r_root, axis=-1)
+    return scores
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def absolute_labels(labels, seen, scores: dict[str, np.ndarray], decided: dict[str, np.ndarray], kinds: Sequence[str] = SWAP_KINDS[1:]) -> np.ndarray:
+    """``(C, N)`` labels with, in each frame, a swap of one kind in every camera added or taken
+    away where the body says so.
+
+    Swapping a kind in every camera at once changes no correspondence: the epipolar geometry
+    fixes the cameras' labels only relative to each other. In a frame whose cameras (those that
+    see the person, ``seen (C, N)``) carry only ``"none"`` and one kind, the labelling and its
+    complement are told apart by the skeleton's ``scores[kind] (N,)`` (:func:`anatomy_scores`
+    under the current labels) where ``decided[kind] (N,)``: a negative score means the complement;
+    elsewhere the one with fewer swaps is kept. Cameras that do not see the person get label 0.
+    """
+    seen = np.asarray(seen, dtype=bool)
+    labels = np.where(seen, np.asarray(labels, dtype=int), 0)
+    count = seen.sum(axis=0)
+    for code in _kind_codes(kinds)[1:]:
+        kind = SWAP_KINDS[code]
+        only = np.all(~seen | (labels == 0) | (labels == code), axis=0)
+        flip = only & np.where(decided[kind], scores[kind] < 0, 2 * np.sum(labels == code, axis=0) > count)
+        labels[:, flip] = np.where(seen[:, flip], code - labels[:, flip], 0)
+    return labels
+
+
+def pair_anatomy(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Sequence[str], labels) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Per frame and kind, the median over camera pairs of :func:`anatomy_scores` of the
+    skeleton each pair triangulates under ``labels`` ``(N,)``, and whether it decides
+    (:data:`MIN_ANATOMY_PAIRS` pairs score it, beyond :data:`ANATOMY_MARGIN`): the input of
+    :func:`absolute_labels` before the cameras are placed in one frame."""
+    x, w, Ks = _check_rig(x, w, Ks)
+    xl = np.where(apply_labels(w, labels, names)[..., None] > 0, apply_labels(x, labels, names), np.nan)
+    per_pair = [anatomy_scores(triangulate_pair(g, xl[g.a], xl[g.b], Ks[g.a], Ks[g.b]), names) for g in pairs.values()]
+    scores, decided = {}, {}
+    for kind in SWAP_KINDS[1:]:
+        stacked = np.stack([s[kind] for s in per_pair]) if per_pair else np.full((1, w.shape[1]), np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # frames no pair triangulates
+            scores[kind] = np.nanmedian(stacked, axis=0)
+        decided[kind] = (np.isfinite(stacked).sum(axis=0) >= MIN_ANATOMY_PAIRS) & (np.abs(scores[kind]) >= ANATOMY_MARGIN[kind])
+    return scores, decided
+
+
 def resolve_swaps(
     x,
     w,
@@ -376,8 +527,10 @@ def resolve_swaps(
     Each round estimates every pair's geometry on the current labels (:func:`pair_geometries`),
     then relabels one camera at a time against the others' current labels
     (:func:`swap_costs`, :func:`decide_labels`): always the camera whose relabelling lowers its
-    cost the most, until none would change. Taking the strongest evidence first keeps a camera
-    with many swaps from making the clean ones look swapped where it disagrees with them. The
+    cost the most, until none would change; then each frame's labels get or lose a swap in every
+    camera where the body says so (:func:`absolute_labels`), and the cameras are relabelled again. Taking the
+    strongest evidence first keeps a camera with many swaps from making the clean ones look
+    swapped where it disagrees with them. The
     rounds stop when one changes no label (or after ``max_rounds``); the returned geometries are
     those of the final labels. A whole-body swap in every camera at once is consistent
     geometry: it is not found.
@@ -399,10 +552,13 @@ def resolve_swaps(
     C, N, _ = w.shape
     labels = np.zeros((C, N), dtype=int)
 
+    seen = (w > 0).any(axis=-1)
+
     def relabel(pairs) -> np.ndarray:
         new = labels.copy()
-        for _ in range(2 * C):
-            nats, _ = swap_costs(x, w, Ks, pairs, names, new, cap_px=threshold_px)
+        tables = pair_tables(x, w, Ks, pairs, names, cap_px=threshold_px)
+        for _ in range(4 * C):
+            nats, _ = swap_costs(tables, new)
             gains, proposals = np.zeros(C), []
             for c in range(C):
                 proposal = decide_labels(nats[c], kinds)
@@ -410,28 +566,33 @@ def resolve_swaps(
                 gains[c] = _path_cost(unary, position[new[c]], SWITCH_NATS) - _path_cost(unary, position[proposal], SWITCH_NATS)
                 proposals.append(proposal)
             c = int(np.argmax(gains))
-            if np.array_equal(proposals[c], new[c]):
+            if not np.array_equal(proposals[c], new[c]):
+                new[c] = proposals[c]
+                continue
+            absolute = absolute_labels(new, seen, *pair_anatomy(x, w, Ks, pairs, names, new), kinds)
+            if np.array_equal(absolute, new):
                 break
-            new[c] = proposals[c]
+            new = absolute
         return new
 
     converged = False
     rounds = 0
-    seen = [labels]
+    history = [labels]
+    pairs = None
     while rounds < max_rounds and not converged:
         rounds += 1
-        pairs = pair_geometries(apply_labels(x, labels, names), apply_labels(w, labels, names), Ks, threshold_px=threshold_px)
+        pairs = pair_geometries(apply_labels(x, labels, names), apply_labels(w, labels, names), Ks, threshold_px=threshold_px, previous=pairs)
         new = relabel(pairs)
         converged = np.array_equal(new, labels)
-        if not converged and any(np.array_equal(new, old) for old in seen):
+        if not converged and any(np.array_equal(new, old) for old in history):
             # A borderline frame flips the essential matrices' RANSAC just enough to flip back:
             # labels seen before will not settle.
             labels = new
             break
-        seen.append(new)
+        history.append(new)
         labels = new
     if not converged:
-        pairs = pair_geometries(apply_labels(x, labels, names), apply_labels(w, labels, names), Ks, threshold_px=threshold_px)
+        pairs = pair_geometries(apply_labels(x, labels, names), apply_labels(w, labels, names), Ks, threshold_px=threshold_px, previous=pairs)
     return SwapCheck(labels, pairs, rounds, converged)
 
 
@@ -441,11 +602,16 @@ __all__ = [
     "SwapCheck",
     "apply_labels",
     "decide_labels",
+    "absolute_labels",
+    "anatomy_scores",
+    "pair_anatomy",
     "fundamental_matrix",
     "normalised",
     "pair_geometries",
     "relative_pose",
     "resolve_swaps",
     "sampson_px",
+    "pair_tables",
     "swap_costs",
+    "triangulate_pair",
 ]
