@@ -48,7 +48,9 @@ MIN_CORRESPONDENCES = 40
 """Fewer common keypoints than this say nothing about a pair (a few frames at the edge of a view)."""
 
 MIN_VISIBILITY = 0.5
-"""Keypoints below this confidence are the detector's guesses and make no correspondence."""
+"""Keypoints below this confidence are the detector's guesses (BlazePose places occluded points
+anyway): they make no correspondence here, and no box nor track link in
+:mod:`mocapgraph.data_tools.tracking.people`."""
 
 _MAX_RELABEL_ROUNDS = 3
 _RANSAC_CONFIDENCE = 0.999
@@ -225,12 +227,6 @@ class Association:
         (NaN for a person seen by one camera only)."""
         return _pooled(self, _nodes(self.people[person]), _nodes(self.people[person]))
 
-    def person_of(self, camera: str, track: int) -> int | None:
-        for p, person in enumerate(self.people):
-            if track in person.get(camera, ()):
-                return p
-        return None
-
 
 def _nodes(person: Mapping[str, tuple[int, ...]]) -> list[tuple[str, int]]:
     return [(cam, i) for cam, tracks in person.items() for i in tracks]
@@ -306,12 +302,8 @@ def associate_tracks(
                                   cam_a, i, cam_b, j, s.inlier_ratio, s.median_error_px, len(s.swapped_frames), s.frames)  # fmt: skip
 
     def compatible(group_a, group_b) -> bool:
-        for cam_a, i in group_a:
-            for cam_b, j in group_b:
-                T = min(seen[cam_a].shape[1], seen[cam_b].shape[1])
-                if cam_a == cam_b and (seen[cam_a][i, :T] & seen[cam_b][j, :T]).any():
-                    return False
-        return True
+        """No camera would see the person twice in a frame."""
+        return not any(cam_a == cam_b and (seen[cam_a][i] & seen[cam_a][j]).any() for cam_a, i in group_a for cam_b, j in group_b)
 
     groups = [[(cam, i)] for cam in cameras for i in range(len(coords[cam]))]
     while True:

@@ -23,17 +23,13 @@ from scipy.optimize import linear_sum_assignment
 
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import swap_permutation
-from mocapgraph.data_tools.geometry.association import Association, associate_tracks
+from mocapgraph.data_tools.geometry.association import MIN_VISIBILITY, Association, associate_tracks
 from mocapgraph.data_tools.io.calibration import CameraCalibration
 from mocapgraph.data_tools.io.importers import _default_K as default_intrinsics
 from mocapgraph.data_tools.io.importers import assemble_capture
 from mocapgraph.errors import MocapgraphError
 
 log = logging.getLogger(__name__)
-
-MIN_VISIBILITY = 0.5
-"""Points with a lower confidence are guesses (BlazePose places occluded points anyway): they do
-not shape a person's box nor decide which track a detection belongs to."""
 
 _MIN_COMMON_POINTS = 3
 _MIN_HEIGHT_PX = 1.0
