@@ -194,6 +194,10 @@ def test_detect_command_errors(tmp_path, capsys, scene_videos, monkeypatch):
     code, message = run_cli(["detect", str(empty), "--out", str(tmp_path / "cap")], capsys)
     assert code == 2 and message.startswith(f"{empty}: no videos in this folder")
 
+    (tmp_path / "bad.mp4").write_bytes(b"not a video at all")
+    code, message = run_cli(["detect", str(scene_videos / "cam1.avi"), str(tmp_path / "bad.mp4"), "--out", str(tmp_path / "cap")], capsys)
+    assert code == 2 and message.startswith(f"{tmp_path / 'bad.mp4'}: ")
+
     write_video(scene_videos / "cam5.avi", SCENE_FRAMES - 4, fps=20.0, size=SCENE_SIZE, camera=4)
     code, message = run_cli(["detect", str(scene_videos), "--out", str(tmp_path / "cap")], capsys)
     assert code == 2 and "the videos have different lengths (cam1.avi: 24 frames" in message and "cam5.avi: 20 frames" in message
