@@ -175,8 +175,9 @@ class DetectorFaults:
     starts at rate ``λ(θ) = λ_front·max(cos θ, 0)² + λ_side·sin² θ + λ_back·max(-cos θ, 0)²`` per
     second, θ being the angle between the body's facing direction and the direction from the
     body to the camera (0 = seen from the front, π/2 from the side, π from behind), and lasts a
-    duration drawn log-uniformly in its range; frame rates only change how finely the runs are
-    sampled. Runs are separated by at least one correctly labelled frame.
+    duration drawn log-uniformly in its range, covering the frames that start within that duration
+    less half a frame (so ``round(duration · fps)`` frames, at least one); frame rates only change
+    how finely the runs are sampled. Runs are separated by at least one correctly labelled frame.
 
     Attributes:
         body_swap_rate_hz: (front, side, back) onset rate of whole-body left/right swaps, 1/s.
@@ -666,9 +667,9 @@ def _swap_runs(times: np.ndarray, hazards: np.ndarray, faults: DetectorFaults, u
     if T == 0 or not np.any(hazards > 0):
         return codes
     steps = np.diff(times)
-    first = float(np.median(steps)) if T > 1 else 1.0 / DEFAULT_FRAME_RATE_HZ
+    step = float(np.median(steps)) if T > 1 else 1.0 / DEFAULT_FRAME_RATE_HZ
     total = hazards.sum(axis=1)
-    p_onset = 1.0 - np.exp(-total * np.concatenate([[first], steps]))
+    p_onset = 1.0 - np.exp(-total * np.concatenate([[step], steps]))
     share = np.cumsum(hazards, axis=1) / np.where(total > 0, total, 1.0)[:, None]
     durations = (faults.body_swap_duration_s, faults.limb_swap_duration_s, faults.limb_swap_duration_s)
     k = 0
@@ -679,8 +680,8 @@ def _swap_runs(times: np.ndarray, hazards: np.ndarray, faults: DetectorFaults, u
         kind = min(int(np.searchsorted(share[k], u_kind[k], side="right")), 2)
         lo, hi = durations[kind]
         length = lo * (hi / lo) ** u_duration[k]
-        # frames within the run's duration of its onset (a tolerance keeps 0.1 s at 30 fps 3 frames)
-        end = k + max(1, int(np.searchsorted(times[k:] - times[k], length - 1e-9, side="left")))
+        # the frames starting within the run's duration less half a frame: round(duration / step) frames
+        end = k + max(1, int(np.searchsorted(times[k:] - times[k], length - 0.5 * step, side="left")))
         codes[k:end] = kind + 1
         k = end + 1  # one correct frame at least: consecutive runs never merge into a longer one
     return codes
