@@ -71,8 +71,9 @@ MIN_PAIR_ANGLE_DEG = 4.0
 """A starting pair whose median triangulation angle is below this triangulates too poorly."""
 
 MIN_GROUND_SPREAD_M = 0.3
-"""The feet's ground contacts must spread at least this far (standard deviation, both horizontal
-directions) for their plane to give the vertical; else the body's mean axis gives it."""
+"""A direction along which the feet's ground contacts spread at least this far (standard
+deviation) is taken as horizontal: two such give the ground plane, one a line the vertical is
+square to; the body's mean axis gives the rest."""
 
 MAX_GROUND_TILT_DEG = 30.0
 """A ground plane further than this from the body's mean axis is not the floor (a stair, a fit to noise)."""
@@ -333,9 +334,11 @@ class BodyFrame:
         scale: metres per unit of the reconstruction.
         R: ``(3, 3)`` rotation; origin: ``(3,)`` in the reconstruction's frame.
         stature: the person's height in reconstruction units, from their eye-to-ankle extent.
-        vertical: ``"ground plane"`` (fitted to the feet) or ``"body axis"`` (their mean ankle-to-eye direction).
-        feet_spread_m: the smaller standard deviation of the feet's ground contacts in their plane.
-        feet_tilt_deg: the angle between that plane's normal and the body's mean axis.
+        vertical: ``"ground plane"`` (the normal of the feet's ground contacts), ``"body axis
+            across the feet's line"`` (the body's mean axis made square to the line the contacts
+            lie along) or ``"body axis"`` (the mean direction from the stance ankle to the shoulders).
+        feet_spread_m: standard deviations of the feet's ground contacts along their two main directions.
+        feet_tilt_deg: the angle between the vertical the contacts give and the body's mean axis.
     """
 
     scale: float
@@ -343,17 +346,20 @@ class BodyFrame:
     origin: np.ndarray
     stature: float
     vertical: str
-    feet_spread_m: float
+    feet_spread_m: tuple[float, float]
     feet_tilt_deg: float
 
     @property
     def why(self) -> str:
         """Why the vertical is what it is, for the notes."""
+        wide, narrow = self.feet_spread_m
         if self.vertical == "ground plane":
-            return f"the feet's ground contacts spread {self.feet_spread_m:.2f} m, their plane {self.feet_tilt_deg:.1f}° from the body's axis"
-        if self.feet_spread_m < MIN_GROUND_SPREAD_M:
-            return f"the feet's ground contacts spread only {self.feet_spread_m:.2f} m"
-        return f"the feet's plane is {self.feet_tilt_deg:.0f}° from the body's axis"
+            return f"the feet's ground contacts spread {wide:.2f} m by {narrow:.2f} m; {self.feet_tilt_deg:.1f}° from the body's axis"
+        if self.vertical != "body axis":
+            return f"the feet's ground contacts lie along a line ({wide:.2f} m, {narrow:.2f} m across it): the vertical is square to it, {self.feet_tilt_deg:.1f}° from the body's axis"
+        if wide >= MIN_GROUND_SPREAD_M:
+            return f"the feet's ground contacts lie {self.feet_tilt_deg:.0f}° off the body's axis: not the floor"
+        return f"the feet's ground contacts spread only {wide:.2f} m"
 
     def points(self, p: np.ndarray) -> np.ndarray:
         return self.scale * (np.asarray(p) - self.origin) @ self.R.T
@@ -379,10 +385,12 @@ def body_frame(points: np.ndarray, fmt: str, height_m: float) -> BodyFrame:
 
     - **Up**: the mean direction from the lower ankle to the shoulders' midpoint over the frames
       (the stance foot stands under the shoulders: on the simulator's walks, turns and stands
-      within 2° of the vertical, where the eyes, ahead of the body's line, lean 3–6°); replaced
-      by the normal of the plane through the lower ankle of each frame when those ground contacts
-      spread at least :data:`MIN_GROUND_SPREAD_M` both ways and the plane lies within
-      :data:`MAX_GROUND_TILT_DEG` of the body's axis (on a treadmill, or standing, they do not).
+      within 2° of the vertical, where the eyes, ahead of the body's line, lean 3–6°); then made
+      square to each main direction along which the lower ankles of the frames near the floor
+      (the ground contacts) spread at least :data:`MIN_GROUND_SPREAD_M`: both, and it is the
+      normal of their plane; one (a walk along a line), and the body's lean about that line is
+      gone; none (a treadmill, standing), and it stays. Contacts that would tilt it more than
+      :data:`MAX_GROUND_TILT_DEG` are not the floor.
     - **Scale**: the median height of the eyes above the lower ankle is
       ``EYE_HEIGHT_FRACTION − ANKLE_HEIGHT_FRACTION`` of the stature, set to ``height_m``; for a
       person walking upright that is their standing height (knees bend a little: a percent or two
@@ -425,10 +433,15 @@ def body_frame(points: np.ndarray, fmt: str, height_m: float) -> BodyFrame:
         if len(near) < 3:
             break
         contacts = near
-    spread = float(s[1] / np.sqrt(len(contacts)) * scale) if len(contacts) >= 3 else 0.0
-    tilt = float(np.degrees(np.arccos(np.clip(normal @ axis, -1.0, 1.0))))
-    from_ground = spread >= MIN_GROUND_SPREAD_M and tilt <= MAX_GROUND_TILT_DEG
-    up = normal if from_ground else axis
+    # The contacts' spread along their two main directions; each direction they spread far along
+    # is horizontal, so the vertical is made perpendicular to it.
+    spread = s[:2] / np.sqrt(len(contacts)) * scale if len(contacts) >= 3 else np.zeros(2)
+    along = [vt[i] for i in range(2) if spread[i] >= MIN_GROUND_SPREAD_M]
+    up = _unit(axis - sum((axis @ d) * d for d in along)) if along else axis
+    tilt = float(np.degrees(np.arccos(np.clip(up @ axis, -1.0, 1.0))))
+    if tilt > MAX_GROUND_TILT_DEG:
+        up, along = axis, []
+    vertical = ("body axis", "body axis across the feet's line", "ground plane")[len(along)]
     feet = lower_ankles(up)[usable]
     ground = float(np.median(feet @ up)) - ANKLE_HEIGHT_FRACTION * stature
     both_hips = np.flatnonzero(np.isfinite(hips).all(-1) & np.isfinite(points[:, names.index("left_hip")]).all(-1))
@@ -440,7 +453,7 @@ def body_frame(points: np.ndarray, fmt: str, height_m: float) -> BodyFrame:
     right = np.cross(facing, up)
     R = np.stack([right, facing, up])
     origin = hips[n] - (hips[n] @ up - ground) * up
-    return BodyFrame(scale, R, origin, stature, "ground plane" if from_ground else "body axis", spread, tilt)
+    return BodyFrame(scale, R, origin, stature, vertical, (float(spread[0]), float(spread[1])), tilt)
 
 
 # ---------------------------------------------------------------------------------------------

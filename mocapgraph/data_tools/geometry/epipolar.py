@@ -27,6 +27,7 @@ A relative pose ``(R, t)`` of cameras ``a, b`` maps camera ``a``'s coordinates t
 
 from __future__ import annotations
 
+import itertools
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -75,6 +76,13 @@ one pair's skeleton can be the other side's points guessed by a detector that se
 _FLOOR_PX2 = 0.25
 """Added to a mean squared Sampson distance (px²) before its logarithm: below a quarter of a
 squared pixel, differences are rounding, not evidence (and noise-free data stays finite)."""
+
+MAX_JOINT_CAMERAS = 6
+"""Up to this many cameras, :func:`resolve_swaps` also tries every joint labelling of a frame
+(:func:`best_frames`: 4096 per frame for 6 cameras); with more, only one camera at a time."""
+
+_MAX_MOVES = 100
+_MIN_GAIN_NATS = 1e-6
 
 MIN_SWAP_POINTS = 4
 """Fewest co-visible correspondences (over all other cameras) for a labelling to be scored."""
@@ -300,14 +308,22 @@ def apply_labels(values, labels, names: Sequence[str]) -> np.ndarray:
     return out
 
 
-def pair_tables(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Sequence[str], *, cap_px: float) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
-    """Each pair's epipolar fit under every combination of the two cameras' labellings.
+def pair_tables(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Sequence[str], *, cap_px: float) -> dict[tuple[int, int], np.ndarray]:
+    """Each pair's epipolar misfit, in nats, under every combination of the two cameras' labellings.
 
-    Returns, per pair ``(a, b)``, ``total (N, S, S)``: the sum over frame ``n``'s co-visible
-    correspondences of ``min(d, cap_px)²`` (``d`` the Sampson distance in pixels) with camera
-    ``a``'s points under swap ``SWAP_KINDS[i]`` and ``b``'s under ``SWAP_KINDS[j]`` at ``[n, i, j]``,
-    and ``count (N, S, S)`` of those correspondences (``S = len(SWAP_KINDS)``). Truncation keeps
-    one wrong point (an outlier, another person) from deciding.
+    For pair ``(a, b)`` and frame ``n``, with ``a``'s points under swap ``SWAP_KINDS[i]`` and
+    ``b``'s under ``SWAP_KINDS[j]``: ``m`` co-visible correspondences with Sampson distances ``d``
+    (pixels), truncated at ``cap_px`` so that one wrong point (an outlier, another person) cannot
+    decide. The cost is the Gaussian negative log-likelihood with the frame's noise unknown,
+    maximised over it: ``m/2 · log(mean(min(d, cap_px)²))`` (up to a constant), so differences
+    between labellings are ``m/2 · log`` of the ratio of their mean squared distances: a frame
+    that fits badly under every labelling (a side view, heavy noise) gives little evidence,
+    however large its distances. A permutation can change which points are co-visible, so every
+    combination is scored with the frame's largest ``m``; fewer than :data:`MIN_SWAP_POINTS`
+    correspondences give no evidence (0).
+
+    Returns:
+        Per pair ``(a, b)``, ``(N, S, S)`` nats at ``[n, i, j]`` (``S = len(SWAP_KINDS)``).
     """
     x, w, Ks = _check_rig(x, w, Ks)
     C, N, K = w.shape
@@ -324,46 +340,38 @@ def pair_tables(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Seq
                 d = np.minimum(sampson_px(geometry.F, x[a][:, pa], x[b][:, pb]), cap_px)
                 total[:, i, j] = np.where(both, d**2, 0.0).sum(axis=1)
                 count[:, i, j] = both.sum(axis=1)
-        tables[(a, b)] = (total, count)
+        most = count.max(axis=(1, 2), keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nats = 0.5 * most * np.log(total / count + _FLOOR_PX2)
+        tables[(a, b)] = np.where((count >= MIN_SWAP_POINTS) & (most >= MIN_SWAP_POINTS), nats, 0.0)
     return tables
 
 
-def swap_costs(tables: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]], labels) -> tuple[np.ndarray, np.ndarray]:
-    """How badly each labelling of each camera-frame fits the other cameras' epipolar geometry.
-
-    For camera ``c``, frame ``n`` and every kind of :data:`SWAP_KINDS`, ``c``'s points under that
-    swap are compared with every other camera's under its current ``labels (C, N)`` (from
-    :func:`pair_tables`): ``m`` co-visible correspondences with truncated squared Sampson
-    distances. The cost is the Gaussian negative log-likelihood with the frame's noise unknown,
-    maximised over it: ``m/2 · log(mean(min(d, cap_px)²))`` nats (up to a constant). Its
-    differences between labellings are therefore ``m/2 · log`` of the ratio of their mean squared
-    distances: a frame whose points fit badly under every labelling (a side view, heavy noise)
-    gives little evidence, however large its distances. A permutation can change which points
-    are co-visible, so every kind is scored with the largest ``m`` of any kind.
-
-    Returns:
-        ``nats (C, N, len(SWAP_KINDS))`` (NaN where fewer than :data:`MIN_SWAP_POINTS`
-        correspondences) and ``count (C, N, len(SWAP_KINDS))`` of the correspondences scored.
-    """
+def swap_costs(tables: dict[tuple[int, int], np.ndarray], labels) -> np.ndarray:
+    """``(C, N, len(SWAP_KINDS))`` nats: how badly each labelling of each camera-frame fits the
+    other cameras' epipolar geometry under their current ``labels (C, N)``: the sum of its
+    pairs' :func:`pair_tables` entries (the part of :func:`labelling_cost` that camera ``c``'s
+    label at frame ``n`` changes, but for the prior and the changes in time)."""
     labels = np.asarray(labels, dtype=int)
     C, N = labels.shape
     frames = np.arange(N)
-    total = np.zeros((C, N, len(SWAP_KINDS)))
-    count = np.zeros((C, N, len(SWAP_KINDS)), dtype=int)
-    for (a, b), (t, m) in tables.items():
-        total[a] += t[frames, :, labels[b]]
-        count[a] += m[frames, :, labels[b]]
-        total[b] += t[frames, labels[a], :]
-        count[b] += m[frames, labels[a], :]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        nats = 0.5 * count.max(axis=-1, keepdims=True) * np.log(total / count + _FLOOR_PX2)
-    return np.where(count >= MIN_SWAP_POINTS, nats, np.nan), count
+    nats = np.zeros((C, N, len(SWAP_KINDS)))
+    for (a, b), table in tables.items():
+        nats[a] += table[frames, :, labels[b]]
+        nats[b] += table[frames, labels[a], :]
+    return nats
 
 
-def _path_cost(unary: np.ndarray, path: np.ndarray, switch_nats: float) -> float:
-    """The objective :func:`decide_labels` minimises, of ``path`` (indices into the kinds)."""
-    padded = np.concatenate([[0], path, [0]])
-    return float(np.take_along_axis(unary, path[:, None], axis=-1).sum() + switch_nats * np.count_nonzero(np.diff(padded)))
+def labelling_cost(tables: dict[tuple[int, int], np.ndarray], labels, *, swap_nats: float = SWAP_NATS, switch_nats: float = SWITCH_NATS) -> float:
+    """The objective :func:`resolve_swaps` lowers: every pair's misfit (:func:`pair_tables`) at
+    every frame, plus ``swap_nats`` per swapped camera-frame and ``switch_nats`` per change of a
+    camera's labelling from one frame to the next (frames before the first and after the last
+    count as unswapped)."""
+    labels = np.asarray(labels, dtype=int)
+    frames = np.arange(labels.shape[1])
+    misfit = sum(float(table[frames, labels[a], labels[b]].sum()) for (a, b), table in tables.items())
+    padded = np.pad(labels, ((0, 0), (1, 1)))
+    return misfit + swap_nats * np.count_nonzero(labels) + switch_nats * np.count_nonzero(np.diff(padded, axis=1))
 
 
 def _unary(nats: np.ndarray, codes: np.ndarray, swap_nats: float) -> np.ndarray:
@@ -512,6 +520,34 @@ def pair_anatomy(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Se
     return scores, decided
 
 
+def best_frames(tables: dict[tuple[int, int], np.ndarray], labels, kinds: Sequence[str] = SWAP_KINDS[1:]) -> np.ndarray:
+    """``(C, N)`` labels where each frame, given its neighbours, takes the labelling of all its
+    cameras at once that lowers :func:`labelling_cost` the most (even frames first, then odd ones
+    against the new even ones). Where several cameras are wrong together, no single camera's
+    relabelling helps; this move can. It tries ``(1 + len(kinds))^C`` labellings per frame."""
+    labels = np.asarray(labels, dtype=int)
+    C, N = labels.shape
+    codes = _kind_codes(kinds)
+    position = np.zeros(len(SWAP_KINDS), dtype=int)
+    position[codes] = np.arange(len(codes))
+    states = np.array(list(itertools.product(codes, repeat=C)))  # (J, C), the first camera most significant
+    misfit = np.zeros((N, len(states)))
+    for (a, b), table in tables.items():
+        misfit += table[:, states[:, a], states[:, b]]
+    misfit += SWAP_NATS * np.count_nonzero(states, axis=1)
+    out = labels.copy()
+    for parity in (0, 1):
+        padded = np.pad(out, ((0, 0), (1, 1)))
+        before, after = padded[:, :-2].T, padded[:, 2:].T  # (N, C): each frame's neighbours
+        cost = misfit + SWITCH_NATS * (np.sum(states[None] != before[:, None], axis=-1) + np.sum(states[None] != after[:, None], axis=-1))
+        current = np.sum(position[out.T] * len(codes) ** np.arange(C - 1, -1, -1), axis=1)
+        frames = np.arange(parity, N, 2)
+        best = np.argmin(cost[frames], axis=1)
+        better = cost[frames, best] < cost[frames, current[frames]] - _MIN_GAIN_NATS
+        out[:, frames[better]] = states[best[better]].T
+    return out
+
+
 def resolve_swaps(
     x,
     w,
@@ -524,16 +560,16 @@ def resolve_swaps(
 ) -> SwapCheck:
     """Essential matrices and left/right labels of a rig, estimated in turn until they agree.
 
-    Each round estimates every pair's geometry on the current labels (:func:`pair_geometries`),
-    then relabels one camera at a time against the others' current labels
-    (:func:`swap_costs`, :func:`decide_labels`): always the camera whose relabelling lowers its
-    cost the most, until none would change; then each frame's labels get or lose a swap in every
-    camera where the body says so (:func:`absolute_labels`), and the cameras are relabelled again. Taking the
-    strongest evidence first keeps a camera with many swaps from making the clean ones look
-    swapped where it disagrees with them. The
-    rounds stop when one changes no label (or after ``max_rounds``); the returned geometries are
-    those of the final labels. A whole-body swap in every camera at once is consistent
-    geometry: it is not found.
+    Each round estimates every pair's geometry on the current labels (:func:`pair_geometries`,
+    refined from the previous round's) and lowers :func:`labelling_cost` by moves: relabel the
+    camera whose best sequence of labels (:func:`decide_labels` against the others' current
+    ones) lowers it the most; when no camera helps, relabel frames jointly (:func:`best_frames`);
+    when neither helps, the body decides each frame's absolute side (:func:`absolute_labels`
+    from :func:`pair_anatomy`: a swap shared by every camera fits the epipolar geometry as well
+    as none). Taking the strongest evidence first
+    keeps a camera with many swaps from making the clean ones look swapped. The rounds stop when
+    one changes no label (or after ``max_rounds``); the returned geometries are those of the
+    final labels.
 
     Args:
         x, w, Ks: the rig's arrays as detected (module docstring).
@@ -546,34 +582,30 @@ def resolve_swaps(
     x, w, Ks = _check_rig(x, w, Ks)
     if max_rounds < 1:
         raise MocapgraphError(f"max_rounds: must be at least 1, got {max_rounds}")
-    codes = _kind_codes(kinds)
-    position = np.zeros(len(SWAP_KINDS), dtype=int)
-    position[codes] = np.arange(len(codes))
     C, N, _ = w.shape
     labels = np.zeros((C, N), dtype=int)
-
     seen = (w > 0).any(axis=-1)
 
     def relabel(pairs) -> np.ndarray:
         new = labels.copy()
         tables = pair_tables(x, w, Ks, pairs, names, cap_px=threshold_px)
-        for _ in range(4 * C):
-            nats, _ = swap_costs(tables, new)
-            gains, proposals = np.zeros(C), []
-            for c in range(C):
-                proposal = decide_labels(nats[c], kinds)
-                unary = _unary(nats[c], codes, SWAP_NATS)
-                gains[c] = _path_cost(unary, position[new[c]], SWITCH_NATS) - _path_cost(unary, position[proposal], SWITCH_NATS)
-                proposals.append(proposal)
+        for _ in range(_MAX_MOVES):
+            nats = swap_costs(tables, new)
+            proposals = [decide_labels(nats[c], kinds) for c in range(C)]
+            gains = [labelling_cost(tables, new) - labelling_cost(tables, np.vstack([new[:c], p[None], new[c + 1 :]])) for c, p in enumerate(proposals)]
             c = int(np.argmax(gains))
-            if not np.array_equal(proposals[c], new[c]):
+            if gains[c] > _MIN_GAIN_NATS:
                 new[c] = proposals[c]
                 continue
-            absolute = absolute_labels(new, seen, *pair_anatomy(x, w, Ks, pairs, names, new), kinds)
-            if np.array_equal(absolute, new):
-                break
-            new = absolute
-        return new
+            if C <= MAX_JOINT_CAMERAS:
+                joint = best_frames(tables, new, kinds)
+                if labelling_cost(tables, joint) < labelling_cost(tables, new) - _MIN_GAIN_NATS:
+                    new = joint
+                    continue
+            break
+        # The body's side may cost a prior or a change in time: it comes last, after the moves
+        # (the next round starts from it).
+        return absolute_labels(new, seen, *pair_anatomy(x, w, Ks, pairs, names, new), kinds)
 
     converged = False
     rounds = 0
@@ -601,11 +633,13 @@ __all__ = [
     "PairGeometry",
     "SwapCheck",
     "apply_labels",
+    "best_frames",
     "decide_labels",
     "absolute_labels",
     "anatomy_scores",
     "pair_anatomy",
     "fundamental_matrix",
+    "labelling_cost",
     "normalised",
     "pair_geometries",
     "relative_pose",
