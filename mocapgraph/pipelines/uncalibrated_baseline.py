@@ -7,13 +7,15 @@ static cameras' poses are not: the person's keypoints are the interest points.
    undistorted once), one state per frame of the first camera (``"closest"``).
 2. **Essential matrices and swap check**
    (:func:`~mocapgraph.data_tools.geometry.epipolar.resolve_swaps`): every pair's essential
-   matrix from its co-visible keypoints pooled over all frames (RANSAC), and each camera-frame's
-   left/right labelling chosen by its Sampson distances to the other cameras, in turn until
-   they settle. Relabelled frames are recorded per camera (``CameraTrack.swaps``) and counted in
-   the notes.
+   matrix from its co-visible keypoints pooled over all frames (robust estimators, refined),
+   and each camera-frame's left/right labelling chosen by its Sampson distances to the other
+   cameras, runs preferred over single frames, in turn until they settle. Relabelled frames are
+   recorded per camera (``CameraTrack.swaps``) and counted in the notes.
 3. **One frame**: the pair with the most inliers among those that triangulate well starts;
    its points are triangulated, every other camera is added by PnP (RANSAC) on them, the
-   points re-triangulated with RANSAC over views after each.
+   points re-triangulated with RANSAC over views after each. A swap shared by every camera of
+   a frame is then undone where the skeleton from all cameras is mirrored
+   (:func:`~mocapgraph.data_tools.geometry.epipolar.anatomy_scores`).
 4. **Bundle adjustment** of the cameras and a free 3D point per keypoint and frame, Geman-McClure
    on the reprojection error (GTSAM's projection factor, this package's LM). The first camera
    of the starting pair holds the gauge, the pair's distance the (arbitrary) scale.

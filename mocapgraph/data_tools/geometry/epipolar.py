@@ -4,15 +4,18 @@ Cameras with known intrinsics and unknown poses watch the same person. Every key
 cameras see in the same frame is a correspondence, and pooled over a capture (hundreds of
 frames, the person moving about) they fix each pair's essential matrix and relative pose, as
 interest points do in structure from motion: :func:`relative_pose` (``cv2.findEssentialMat``
-with RANSAC on normalised coordinates, ``cv2.recoverPose``), :func:`pair_geometries` for every
-pair of a rig.
+with three robust estimators on normalised coordinates, ``cv2.recoverPose``, a robust Sampson
+refinement, the best of them kept), :func:`pair_geometries` for every pair of a rig.
 
 A 2D detector that confuses the person's left and right in a frame (whole body, or only the arms
 or legs: :mod:`mocapgraph.body.labelling`) reports points that break the epipolar geometry of
-every other camera; relabelled by the swap's permutation they fit it again. :func:`swap_costs`
-scores each labelling of each camera-frame by its Sampson distances to the other cameras, and
-:func:`resolve_swaps` alternates between estimating the essential matrices on the current
-labels and relabelling, until the labels settle.
+every other camera; relabelled by the swap's permutation they fit it again.
+:func:`pair_tables` scores every pair's fit under every combination of the two cameras'
+labellings, :func:`labelling_cost` adds a prior against swaps and against changes from frame to
+frame (detectors swap in runs), and :func:`resolve_swaps` lowers it, one camera
+(:func:`decide_labels`, Viterbi) or one frame (:func:`best_frames`) at a time, alternating with
+new essential matrices on the new labels. A swap every camera shares fits as well as none: the
+skeleton's handedness and limbs (:func:`anatomy_scores`, :func:`absolute_labels`) decide those.
 
 Arrays of a rig (``C`` cameras, ``N`` frames on one clock, ``K`` points of one format):
 
@@ -85,7 +88,7 @@ _MAX_MOVES = 100
 _MIN_GAIN_NATS = 1e-6
 
 MIN_SWAP_POINTS = 4
-"""Fewest co-visible correspondences (over all other cameras) for a labelling to be scored."""
+"""Fewest co-visible correspondences of a pair in a frame for its labellings to be scored."""
 
 
 @dataclass(frozen=True)
@@ -97,7 +100,7 @@ class PairGeometry:
         E: ``(3, 3)`` essential matrix, ``x̂_bᵀ E x̂_a = 0`` for normalised homogeneous points.
         R, t: ``(3, 3)``, ``(3,)``: ``X_b = R X_a + t``, ``‖t‖ = 1``.
         F: ``(3, 3)`` fundamental matrix of the undistorted pixels, ``x_bᵀ F x_a = 0``.
-        inliers: correspondences consistent with ``E`` (within the threshold, in front of both cameras).
+        inliers: correspondences within the threshold of their epipolar geometry (Sampson distance).
         correspondences: co-visible keypoints offered.
         median_angle_deg: median angle between the two rays of the inliers: how well the pair
             triangulates (0 for a pure rotation).
@@ -112,14 +115,6 @@ class PairGeometry:
     inliers: int
     correspondences: int
     median_angle_deg: float
-
-    def fundamental_from(self, c: int) -> np.ndarray:
-        """``F`` with camera ``c`` (``a`` or ``b``) as the first view: ``x_otherᵀ F x_c = 0``."""
-        if c == self.a:
-            return self.F
-        if c == self.b:
-            return self.F.T
-        raise ValueError(f"camera {c} is not in the pair ({self.a}, {self.b})")
 
 
 @dataclass
