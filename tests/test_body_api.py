@@ -50,5 +50,5 @@ def test_bad_poses_are_one_clear_error(body, root, pose, message):
 def test_unknown_backend_and_format(body):
     with pytest.raises(MocapgraphError, match="unknown body backend 'star'"):
         load_body_model("star")
-    with pytest.raises(MocapgraphError, match="unknown keypoint format 'halpe'"):
-        body.table(body.default_shape, "halpe")
+    with pytest.raises(MocapgraphError, match="unknown keypoint format 'posenet9'"):
+        body.table(body.default_shape, "posenet9")

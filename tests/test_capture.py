@@ -108,7 +108,7 @@ def edit_manifest(path, old, new):
         (lambda p: (p / "capture.toml").write_text("not = [toml"), r"capture.toml: not valid TOML"),
         (lambda p: edit_manifest(p, "version = 1", "version = 7"), r"capture.toml: version: this mocapgraph reads version 1"),
         (lambda p: edit_manifest(p, "1000.0", "-1000.0"), r"capture.toml: cameras.static0.K: needs fx > 0"),
-        (lambda p: edit_manifest(p, '"openpose25"', '"halpe26"'), r"cameras.static0.detectors\[0\].format: unknown keypoint format 'halpe26'"),
+        (lambda p: edit_manifest(p, '"openpose25"', '"posenet9"'), r"cameras.static0.detectors\[0\].format: unknown keypoint format 'posenet9'"),
         (lambda p: edit_manifest(p, 'kind = "gps"', 'kind = "lidar"'), r"cameras.uav1.sensors\[0\].kind: unknown sensor kind 'lidar'"),
         (lambda p: edit_manifest(p, "image_size = [", "image_size = [0, "), r"cameras.static0.image_size: expected \[width, height\]"),
         (lambda p: edit_manifest(p, 'timestamps = "cameras/static0/timestamps.npy"', 'timestamps = "../elsewhere.npy"'), "points outside the directory"),
