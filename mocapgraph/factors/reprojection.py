@@ -46,6 +46,7 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.keypoint_offsets import with_offsets
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.native import native_module, table_arrays
 from mocapgraph.body.skeleton import NUM_JOINTS
@@ -78,13 +79,16 @@ class ShapeTableCache:
         body: the body model.
         keypoint_format: ``"body"`` or a registered detector format name (canonical).
         builds: how many tables were built (a counter for tests and profiling).
+        offsets: ``(K, 3)`` the format's keypoint-definition offsets added to every table
+            (:mod:`mocapgraph.body.keypoint_offsets`), or None.
     """
 
-    def __init__(self, body: BodyModel, keypoint_format: str = "body", size: int = 2):
+    def __init__(self, body: BodyModel, keypoint_format: str = "body", size: int = 2, offsets=None):
         if size < 1:
             raise MocapgraphError(f"ShapeTableCache size must be >= 1, got {size}")
         self.body = body
         self.keypoint_format = "body" if keypoint_format == "body" else get_format(keypoint_format).name
+        self.offsets = None if offsets is None else np.asarray(offsets, dtype=float)
         self.size = int(size)
         self.builds = 0
         self._entries: list[_TableEntry] = []
@@ -106,6 +110,8 @@ class ShapeTableCache:
                     self._entries.insert(0, self._entries.pop(i))
                 return e
         table = self.body.table(np.frombuffer(key), keypoints=self.keypoint_format)
+        if self.offsets is not None:
+            table = with_offsets(table, self.offsets)
         self.builds += 1
         e = _TableEntry(key, table, table_arrays(table), bool(np.all(table.mapped)))
         self._entries.insert(0, e)

@@ -146,13 +146,16 @@ class BodyGraph:
         learned: the learned priors (default: the pose prior ``options`` asks for, loaded now).
         fixed_cameras: per camera, ``(F_c, 4, 4)`` constant world_T_camera (no variable).
         fixed_shape: ``(S,)`` a constant shape (no shape variable), e.g. a per-frame fit's.
+        keypoint_offsets: per keypoint format, ``(K, 3)`` its points' definition offsets
+            (:mod:`mocapgraph.body.keypoint_offsets`), e.g. from :func:`~mocapgraph.graphs.keypoint_fit.estimate_offsets`.
     """
 
     def __init__(
         self, model: StateModel, body: BodyModel, options: GraphOptions, *, learned: LearnedPriors | None = None,
-        fixed_cameras: dict[int, np.ndarray] | None = None, fixed_shape=None,
+        fixed_cameras: dict[int, np.ndarray] | None = None, fixed_shape=None, keypoint_offsets: dict[str, np.ndarray] | None = None,
     ):  # fmt: skip
         options.check()
+        self.keypoint_offsets = dict(keypoint_offsets or {})
         self.model, self.body, self.options = model, body, options
         self.learned = learned if learned is not None else LearnedPriors.load(options.pose_prior)
         self.fixed_cameras = dict(fixed_cameras or {})
@@ -175,7 +178,7 @@ class BodyGraph:
 
     def cache(self, fmt: str) -> ShapeTableCache:
         if fmt not in self.caches:
-            self.caches[fmt] = ShapeTableCache(self.body, fmt)
+            self.caches[fmt] = ShapeTableCache(self.body, fmt, offsets=self.keypoint_offsets.get(fmt))
         return self.caches[fmt]
 
     def camera_vars(self, states: range | None = None) -> dict[int, tuple[int, int]]:

@@ -48,6 +48,7 @@ from mocapgraph.graphs.initialisation import (
     view_bodies,
     view_swaps,
 )
+from mocapgraph.graphs.keypoint_fit import estimate_offsets, reprojection_medians
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.executors import make_executor
@@ -73,6 +74,10 @@ class SmartmocapOptions:
     chunk_size: int = WINDOW
     chunk_iterations: int = 3  # per stage and phase: the chunks only warm-start the final pass
     final_iterations: int = 30
+    # The detector's keypoint definitions estimated from the final pass (graphs.keypoint_fit) and
+    # the sequence solved again with them.
+    keypoint_offsets: bool = True
+    offset_iterations: int = 15
     executor: str = "local"
     workers: int = 2
     address: str | None = None
@@ -96,6 +101,8 @@ class SmartmocapOptions:
             raise MocapgraphError(f"chunk_size: a whole number of states >= 2, got {self.chunk_size!r}")
         if self.motion_prior == "vae" and self.chunk_size != WINDOW:
             raise MocapgraphError(f"chunk_size: the motion prior's windows are {WINDOW} states; use {WINDOW} or motion_prior 'none'")
+        if not (isinstance(self.offset_iterations, int) and self.offset_iterations >= 1):
+            raise MocapgraphError(f"offset_iterations: a whole number >= 1, got {self.offset_iterations!r}")
         if not (isinstance(self.workers, int) and self.workers >= 1):
             raise MocapgraphError(f"workers: a whole number of processes >= 1, got {self.workers!r}")
 
@@ -321,16 +328,26 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     stitched = stitch(body, model, [(a, b, est) for (a, b), (est, _) in zip(bounds, solved)])
     log.info("smartmocap: chunks %.2f s median; stitched; final optimisation", np.median(chunk_seconds))
 
-    bg = BodyGraph(model, body, options.graph, learned=LearnedPriors.load(options.graph.pose_prior, options.motion_prior))
-    graph, values = sequence_graph(bg, stitched, options.gauge_sigmas)
-    solved_final = solve_staged(
-        held(graph, values, bg.held_keys()), values, bg.stages(options.final_iterations, bg.time_ordering(values)), progress="smartmocap final",
-        project=bg.project_shape,
-    )  # fmt: skip
+    learned = LearnedPriors.load(options.graph.pose_prior, options.motion_prior)
+    bg, graph, solved_final = final_pass(model, body, options, learned, stitched, {}, options.final_iterations)
     estimate = bg.read(solved_final.values, stitched)
     estimate.log = list(solved_final.log)
-    swaps = combined_swaps(model, before, bg.relabelled(estimate))
+    offsets: dict[str, np.ndarray] = {}
+    if options.keypoint_offsets:
+        # the keypoints' definitions seen by the solve, then the solve again with them
+        fits = [estimate_offsets(body, model.relabelled(bg.relabelled(estimate)), estimate, fmt) for fmt in model.formats]
+        offsets = {fit.fmt: fit.offsets for fit in fits}
+        for fit in fits:
+            notes.append(f"{fit.fmt} keypoints: definition offsets estimated from {int(fit.frames.max(initial=0))} frames, up to "
+                         f"{100 * np.linalg.norm(fit.offsets, axis=1).max(initial=0):.1f} cm" + (f"; {', '.join(fit.dropped)} implausible, not used" if fit.dropped else ""))  # fmt: skip
+        bg, graph, solved_final = final_pass(model, body, options, learned, estimate, offsets, options.offset_iterations)
+        estimate = bg.read(solved_final.values, estimate)
+        estimate.log += list(solved_final.log)
+    labels = bg.relabelled(estimate)
+    swaps = combined_swaps(model, before, labels)
     notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate))
+    reprojection = reprojection_medians(body, model.relabelled(labels), estimate, offsets)
+    log.info("smartmocap: reprojection median %.1f px (per camera %s)", reprojection["all"], reprojection["camera"])
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
     result = estimate_result(
@@ -340,9 +357,22 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         result.covariances.update(bg.covariances(graph, solved_final.values, estimate))
     result.parameters.update(
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes,
-        focal_px=bg.focal_lengths(estimate),
+        focal_px=bg.focal_lengths(estimate), reprojection_px=reprojection,
+        keypoint_offsets_m={fit.fmt: fit.as_table() for fit in fits} if options.keypoint_offsets else {},
     )
     return result
+
+
+def final_pass(model: StateModel, body: BodyModel, options: SmartmocapOptions, learned: LearnedPriors, start: Estimate, offsets: dict, iterations: int):
+    """The whole sequence solved from ``start`` with the formats' keypoint ``offsets``: its
+    graph builder, graph and solve."""
+    bg = BodyGraph(model, body, options.graph, learned=learned, keypoint_offsets=offsets)
+    graph, values = sequence_graph(bg, start, options.gauge_sigmas)
+    stages = bg.stages(iterations, bg.time_ordering(values))
+    if offsets:
+        stages = stages[1:]  # from a solved start: robust from the first step
+    solved = solve_staged(held(graph, values, bg.held_keys()), values, stages, progress="smartmocap final", project=bg.project_shape)
+    return bg, graph, solved
 
 
 def summary(result: Result) -> str:
@@ -352,4 +382,7 @@ def summary(result: Result) -> str:
         f"smartmocap: {len(result.timestamps)} body states, {len(result.cameras)} cameras, {p['chunks']} chunks "
         f"({p['seconds_per_chunk']:.2f} s each) in {p['seconds']:.1f} s; world: ground plane"
     ]
+    if "reprojection_px" in p:
+        per_camera = ", ".join(f"{name} {px:.1f}" for name, px in p["reprojection_px"]["camera"].items())
+        lines.append(f"  reprojection median {p['reprojection_px']['all']:.1f} px (per camera: {per_camera})")
     return "\n".join(lines + [f"  note: {note}" for note in p["notes"]])

@@ -1,0 +1,139 @@
+"""How well a solved body explains each keypoint, and the keypoint-definition offsets it shows.
+
+With the cameras solved, the views of each body state triangulate each detected point; compared
+in the frame of the segment carrying it (:mod:`mocapgraph.body.keypoint_offsets`) with the body's
+own point, frame after frame, the difference is where the detector format puts that point. Its
+median over the capture, pooled over left and right (mirrored), shrunk towards zero when few
+frames saw it and dropped when larger than any format's measured offset, is the format's offset
+estimate: :func:`estimate_offsets`. A pipeline solves again with it (:class:`~mocapgraph.graphs.body_graph.BodyGraph`'s
+``keypoint_offsets``), a step of a joint estimation of body and offsets by alternation.
+
+:func:`reprojection_medians` reports a fit's pixel errors per camera and per keypoint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, with_offsets
+from mocapgraph.body.model import BodyModel
+from mocapgraph.body.native import forward_kinematics
+from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, left_right_pairs
+from mocapgraph.data_tools.geometry.triangulation import triangulate_points
+from mocapgraph.graphs.state_model import Estimate, StateModel
+
+PRIOR_FRAMES = 30.0
+"""An offset seen in ``n`` frames is shrunk by ``n / (n + PRIOR_FRAMES)`` towards zero."""
+MAX_OFFSET_M = 0.08
+"""Offsets larger than this are not a definition but a failure (another person, a bad solve): dropped."""
+
+
+def _names(fmt: str) -> tuple[str, ...]:
+    return BODY_KEYPOINT_NAMES if fmt == "body" else get_format(fmt).names
+
+
+def _intrinsics(model: StateModel, estimate: Estimate, c: int) -> np.ndarray:
+    K = model.cameras[c].K.copy()
+    K[:2, :2] *= np.exp(estimate.focal_log[c])
+    return K
+
+
+def _posed(body: BodyModel, estimate: Estimate, fmt: str, offsets=None):
+    table = body.table(estimate.shape, keypoints=fmt)
+    if offsets is not None:
+        table = with_offsets(table, offsets)
+    return table, forward_kinematics(table, estimate.roots, estimate.poses)
+
+
+@dataclass
+class OffsetFit:
+    """Keypoint-definition offsets of one format estimated from a solve.
+
+    Attributes:
+        fmt: the format; offsets: ``(K, 3)`` metres in the carrier frames (zero where not estimated).
+        frames: ``(K,)`` how many state-frames triangulated each point (pooled over its pair).
+        dropped: names of the points whose estimate exceeded :data:`MAX_OFFSET_M`.
+    """
+
+    fmt: str
+    offsets: np.ndarray
+    frames: np.ndarray
+    dropped: list[str]
+
+    def as_table(self) -> dict[str, list[float]]:
+        """``{point: [x, y, z] metres}`` of the non-zero offsets, rounded to 0.1 mm."""
+        names, rounded = _names(self.fmt), np.round(self.offsets, 4)
+        return {names[k]: [float(v) for v in rounded[k]] for k in np.flatnonzero(np.any(rounded != 0, axis=1))}
+
+
+def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt: str) -> OffsetFit:
+    """The offsets of format ``fmt``'s points from the body's, at the solve ``estimate`` of ``model``
+    (its observations as the solve labelled them): see the module docstring."""
+    table, fk = _posed(body, estimate, fmt)
+    N, K = fk.keypoints.shape[:2]
+    carrier = carrier_joints(table)
+    samples = np.full((N, K, 3), np.nan)
+    for i, obs in enumerate(model.states):
+        views = [o for o in obs if o.fmt == fmt and o.fraction == 0.0]
+        if len(views) < 2:
+            continue
+        P = np.stack([_intrinsics(model, estimate, o.camera) @ np.linalg.inv(estimate.cameras[o.camera][o.frame])[:3] for o in views])
+        X = triangulate_points(P, np.stack([o.observed for o in views]), np.stack([o.weights for o in views]))
+        G = fk.rotations[i, carrier]  # (K, 3, 3) world-aligned carrier frames
+        samples[i] = np.einsum("kyx,ky->kx", G, X - fk.keypoints[i])
+    samples[:, ~table.mapped] = np.nan
+    names = _names(fmt)
+    offsets, frames = np.zeros((K, 3)), np.zeros(K, dtype=int)
+    groups = [(i, j) for i, j in left_right_pairs(list(names))]
+    paired = {k for pair in groups for k in pair}
+    groups += [(k, None) for k in range(K) if k not in paired]
+    dropped = []
+    for i, j in groups:
+        pooled = samples[:, i] if j is None else np.concatenate([samples[:, i], MIRROR * samples[:, j]])
+        pooled = pooled[np.isfinite(pooled).all(axis=1)]
+        if not len(pooled):
+            continue
+        median = np.median(pooled, axis=0) * len(pooled) / (len(pooled) + PRIOR_FRAMES)
+        if j is None:
+            median[0] = 0.0  # a midline point has no side to be off towards
+        members = [i] if j is None else [i, j]
+        frames[members] = len(pooled)
+        if np.linalg.norm(median) > MAX_OFFSET_M:
+            dropped += [names[k] for k in members]
+            continue
+        offsets[i] = median
+        if j is not None:
+            offsets[j] = MIRROR * median
+    return OffsetFit(fmt, offsets, frames, dropped)
+
+
+def reprojection_medians(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None) -> dict:
+    """Median pixel distance between each observation and the solved body's projection (with
+    the formats' ``offsets``): ``{"camera": {name: px}, "keypoint": {format: {point: px}}, "all": px}``,
+    over the observations at a state (not interpolated) with confidence > 0."""
+    per_camera: dict[int, list] = {}
+    per_point: dict[str, dict[int, list]] = {}
+    posed = {fmt: _posed(body, estimate, fmt, (offsets or {}).get(fmt))[1].keypoints for fmt in model.formats}
+    for i, obs in enumerate(model.states):
+        for o in obs:
+            if o.fraction != 0.0:
+                continue
+            camera = np.linalg.inv(estimate.cameras[o.camera][o.frame])
+            p = posed[o.fmt][i] @ camera[:3, :3].T + camera[:3, 3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv = p[:, :2] / p[:, 2:] @ _intrinsics(model, estimate, o.camera)[:2, :2].T + model.cameras[o.camera].K[:2, 2]
+            error = np.linalg.norm(uv - o.observed, axis=1)
+            use = (o.weights > 0) & np.isfinite(error) & (p[:, 2] > 0)
+            per_camera.setdefault(o.camera, []).extend(error[use])
+            points = per_point.setdefault(o.fmt, {})
+            for k in np.flatnonzero(use):
+                points.setdefault(int(k), []).append(error[k])
+    every = [e for errors in per_camera.values() for e in errors]
+    return {
+        "camera": {model.cameras[c].name: round(float(np.median(e)), 2) for c, e in sorted(per_camera.items())},
+        "keypoint": {fmt: {_names(fmt)[k]: round(float(np.median(e)), 2) for k, e in sorted(pts.items())} for fmt, pts in per_point.items()},
+        "all": round(float(np.median(every)), 2) if every else float("nan"),
+    }

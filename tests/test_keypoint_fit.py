@@ -1,0 +1,128 @@
+"""Keypoint-definition offsets and the reprojection report: the offset table against forward
+kinematics done by hand, the offsets a solve shows against the ones that made the detections,
+and the pixel medians against a direct projection."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapgraph.body import load_body_model
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, with_offsets
+from mocapgraph.body.native import forward_kinematics
+from mocapgraph.body.skeleton import JOINT_NAMES
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.graphs.keypoint_fit import PRIOR_FRAMES, estimate_offsets, reprojection_medians
+from mocapgraph.graphs.state_model import CameraDetections, CameraInfo, Estimate, build_state_model
+
+FMT = "coco17"
+
+
+@pytest.fixture(scope="module")
+def body():
+    return load_body_model()
+
+
+def known_offsets() -> np.ndarray:
+    """Symmetric offsets of a few centimetres at the hips, shoulders and ankles (left points)."""
+    names = get_format(FMT).names
+    out = np.zeros((len(names), 3))
+    for name, left in (("hip", (0.03, 0.0, 0.02)), ("shoulder", (0.01, 0.03, 0.0)), ("ankle", (0.01, 0.0, 0.0))):
+        out[names.index(f"left_{name}")] = left
+        out[names.index(f"right_{name}")] = MIRROR * left
+    return out
+
+
+def test_carriers_and_offsets_in_forward_kinematics(body):
+    """Hip points ride on the pelvis, ankles on the shanks; a posed table with offsets puts each
+    point at the plain table's point plus its carrier's world rotation times the offset."""
+    table = body.table(body.default_shape, keypoints=FMT)
+    names = get_format(FMT).names
+    carriers = carrier_joints(table)
+    assert JOINT_NAMES[carriers[names.index("left_hip")]] == "pelvis"
+    assert JOINT_NAMES[carriers[names.index("left_ankle")]] == "left_knee"
+    rng = np.random.default_rng(0)
+    roots = np.tile(np.eye(4), (3, 1, 1))
+    roots[:, :3, 3] = rng.normal(size=(3, 3))
+    pose = rng.normal(scale=0.3, size=(3, 21, 3))
+    plain = forward_kinematics(table, roots, pose)
+    moved = forward_kinematics(with_offsets(table, known_offsets()), roots, pose)
+    want = plain.keypoints + np.einsum("tkij,kj->tki", plain.rotations[:, carriers], known_offsets())
+    np.testing.assert_allclose(moved.keypoints, want, atol=1e-12)
+    np.testing.assert_array_equal(moved.joints, plain.joints)
+    with pytest.raises(MocapgraphError, match="keypoint offsets"):
+        with_offsets(table, np.zeros((5, 3)))
+
+
+def scene(body, offsets, T=60):
+    """Four static cameras around a person walking a circle, whose detector's points carry
+    ``offsets``; exact pixels. Returns the state model and the true estimate."""
+    rng = np.random.default_rng(1)
+    angle = np.linspace(0, 2 * np.pi, T)
+    roots = np.tile(np.eye(4), (T, 1, 1))
+    for t, a in enumerate(angle):
+        c, s = np.cos(a), np.sin(a)
+        Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+        roots[t, :3, :3] = Rz @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])  # body +Y up, +Z forward
+        roots[t, :3, 3] = [np.cos(a), np.sin(a), 0.95]
+    poses = rng.normal(scale=0.1, size=(T, 21, 3))
+    table = with_offsets(body.table(body.default_shape, keypoints=FMT), offsets)
+    points = forward_kinematics(table, roots, poses).keypoints
+    K = np.array([[1000.0, 0, 640], [0, 1000.0, 360], [0, 0, 1]])
+    cams, dets, cameras = [], [], []
+    times = np.arange(T) / 30.0
+    for c, a in enumerate((0.3, 1.9, 3.5, 5.0)):
+        centre = np.array([5 * np.cos(a), 5 * np.sin(a), 1.5])
+        z = np.array([0.0, 0.0, 1.0]) - centre
+        z /= np.linalg.norm(z)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        T_wc = np.eye(4)
+        T_wc[:3, :3], T_wc[:3, 3] = np.column_stack([x, np.cross(z, x), z]), centre
+        p = (points - centre) @ T_wc[:3, :3]
+        uv = p[..., :2] / p[..., 2:] * 1000.0 + [640, 360]
+        cams.append(CameraInfo(f"cam{c}", K, False, times, 30.0))
+        dets.append(CameraDetections(c, "sim", FMT, np.concatenate([uv, np.ones((T, 17, 1))], axis=-1)))
+        cameras.append(np.tile(T_wc, (T, 1, 1)))
+    model = build_state_model(cams, dets, "closest")
+    return model, Estimate(roots, poses, body.default_shape.copy(), cameras)
+
+
+def test_offsets_recovered_from_exact_views(body):
+    """At the true body and cameras, the estimate is the offsets that made the detections,
+    shrunk by n / (n + PRIOR_FRAMES) for the n = 2 × 60 pooled frames of each pair."""
+    model, truth = scene(body, known_offsets())
+    fit = estimate_offsets(body, model, truth, FMT)
+    n = 2 * 60
+    assert fit.frames[get_format(FMT).names.index("left_hip")] == n
+    np.testing.assert_allclose(fit.offsets, known_offsets() * n / (n + PRIOR_FRAMES), atol=1e-6)
+    assert fit.dropped == []
+    assert set(fit.as_table()) == {f"{s}_{p}" for s in ("left", "right") for p in ("hip", "shoulder", "ankle")}
+
+
+def test_implausible_offsets_are_dropped(body):
+    big = known_offsets()
+    big[[11, 12]] *= 5  # hips 18 cm off: not a definition
+    model, truth = scene(body, big)
+    fit = estimate_offsets(body, model, truth, FMT)
+    assert sorted(fit.dropped) == ["left_hip", "right_hip"] and not fit.offsets[[11, 12]].any()
+
+
+def test_reprojection_medians(body):
+    """Zero at the truth with the true offsets; without them, the hips' median equals the
+    median pixel shift the offsets cause, computed directly."""
+    offsets = known_offsets()
+    model, truth = scene(body, offsets)
+    exact = reprojection_medians(body, model, truth, {FMT: offsets})
+    assert exact["all"] < 1e-6 and set(exact["camera"]) == {"cam0", "cam1", "cam2", "cam3"}
+    plain = reprojection_medians(body, model, truth)
+    table = body.table(body.default_shape, keypoints=FMT)
+    a = forward_kinematics(table, truth.roots, truth.poses).keypoints
+    b = forward_kinematics(with_offsets(table, offsets), truth.roots, truth.poses).keypoints
+    shifts = []
+    for c in range(4):
+        T_cw = np.linalg.inv(truth.cameras[c][0])
+        pa, pb = a @ T_cw[:3, :3].T + T_cw[:3, 3], b @ T_cw[:3, :3].T + T_cw[:3, 3]
+        shifts.append(np.linalg.norm(1000.0 * (pa[..., :2] / pa[..., 2:] - pb[..., :2] / pb[..., 2:]), axis=-1)[:, 11])
+    assert plain["keypoint"][FMT]["left_hip"] == pytest.approx(np.median(np.concatenate(shifts)), abs=0.01)
