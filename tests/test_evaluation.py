@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from conftest import random_root
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.rotations import rotvec_to_matrix
+from mocapgraph.data_tools.evaluation.alignment import align_camera_centres
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.data_tools.io.capture import Camera, Capture, GroundTruth
@@ -122,3 +125,72 @@ def test_no_ground_truth_is_a_clear_error(truth):
     bare = Capture("bare", truth.cameras)
     with pytest.raises(MocapgraphError, match="has no ground truth"):
         evaluate(perfect_result(truth), bare)
+
+
+@pytest.fixture(scope="module")
+def rig(truth):
+    """The truth's body seen by four static cameras (ground truth for each), no handheld one."""
+    rng = np.random.default_rng(1)
+    fixed = truth.camera("fixed")
+    cams = [Camera(f"cam{k}", fixed.K, fixed.distortion, fixed.image_size, False, fixed.timestamps, 30.0) for k in range(4)]
+    poses = {c.name: np.repeat(random_root(rng, 1), len(fixed.timestamps), axis=0) for c in cams}
+    gt = truth.ground_truth
+    return Capture("rig", cams, ground_truth=GroundTruth("anny", gt.timestamps, gt.root, gt.pose, gt.shape, gt.joints, poses))
+
+
+def points_result(capture: Capture, offset, scale: float, R: np.ndarray, t: np.ndarray) -> Result:
+    """A result without body parameters (the uncalibrated baseline's kind): the joints moved by
+    ``offset`` metres, then joints and cameras by the similarity ``x ↦ scale R x + t``."""
+    gt = capture.ground_truth
+    cameras = {n: CameraTrack(capture.camera(n).timestamps, p.copy()) for n, p in gt.cameras.items()}
+    for track in cameras.values():
+        track.world_T_camera[:, :3, :3] = R @ track.world_T_camera[:, :3, :3]
+        track.world_T_camera[:, :3, 3] = scale * track.world_T_camera[:, :3, 3] @ R.T + t
+    joints = scale * (gt.joints + offset) @ R.T + t
+    return Result(pipeline="baseline", capture="-", world_frame="ground_plane", timestamps=gt.timestamps, joints=joints, cameras=cameras)
+
+
+def test_results_without_a_body_are_aligned_by_the_camera_centres(rig):
+    """A similarity (scale 1.3) moves the cameras and the joints; the joints are 5 cm off besides.
+    Aligned by the cameras, the cameras come back exactly and the joints 5 cm off; aligned by the
+    joints (as with two cameras only), the offset would vanish into the translation."""
+    R, t = rotvec_to_matrix(np.array([0.3, 0.2, -2.0])), np.array([1.0, 4.0, -0.5])
+    ev = evaluate(points_result(rig, [0.0, 0.03, 0.04], 1.3, R, t), rig)
+    assert ev.alignment == "similarity (Umeyama with scale over the centres of 4 cameras; scale 0.769)"
+    assert ev.metrics["mcpe_m"] < 1e-9 and ev.metrics["mcoe_rad"] < 1e-9
+    assert ev.metrics["mpjpe_m"] == pytest.approx(0.05)
+
+    two = Capture("two", rig.cameras, ground_truth=replace(rig.ground_truth, cameras={n: rig.ground_truth.cameras[n] for n in ("cam0", "cam1")}))
+    ev = evaluate(points_result(rig, [0.0, 0.03, 0.04], 1.3, R, t), two)
+    assert ev.alignment.startswith("similarity (Umeyama with scale over all joints")
+    assert ev.metrics["mpjpe_m"] < 1e-9 and ev.metrics["mcpe_m"] == pytest.approx(0.05)
+
+
+def test_a_body_result_is_still_aligned_by_its_joints(rig):
+    res = perfect_result(rig, "ground_plane")
+    ev = evaluate(similarity_moved(res, 0.8, np.eye(3), np.array([0.0, 0.0, 1.0])), rig)
+    assert ev.alignment.startswith("similarity (Umeyama with scale over all joints") and "scale 1.250" in ev.alignment
+
+
+def test_camera_centre_alignment_weighs_cameras_equally():
+    """Three cameras' centres through a known similarity; a fourth, seen in 100 frames, is 0.3 m
+    off: it pulls the fit as one camera does, not as 100 (the least-squares answer by hand)."""
+    rng = np.random.default_rng(3)
+    ref = rng.normal(scale=2.0, size=(4, 3))
+    s, R, t = 0.5, rotvec_to_matrix(np.array([0.0, 0.4, 1.1])), np.array([0.2, -1.0, 3.0])
+    est = (ref - t) @ R / s  # s R est + t = ref
+    exact = align_camera_centres([e[None] for e in est[:3]], [r[None] for r in ref[:3]])
+    assert exact.scale == pytest.approx(s) and np.allclose(exact.R, R) and np.allclose(exact.t, t)
+    moved = ref.copy()
+    moved[3] += [0.3, 0.0, 0.0]
+    many = align_camera_centres([e[None] for e in est[:3]] + [np.repeat(est[3:], 100, axis=0)], [r[None] for r in moved[:3]] + [np.repeat(moved[3:], 100, axis=0)])
+    once = align_camera_centres([e[None] for e in est], [m[None] for m in moved])
+    assert many.scale == pytest.approx(once.scale) and np.allclose(many.R, once.R) and np.allclose(many.t, once.t)
+    rigid = align_camera_centres([e[None] * s for e in est], [r[None] for r in ref], with_scale=False)
+    assert rigid.scale == 1.0 and np.allclose(rigid.apply(est * s), ref)
+    with_nan = align_camera_centres([est[:1], est[1:2], est[2:3], np.full((5, 3), np.nan)], [ref[:1], ref[1:2], ref[2:3], np.zeros((5, 3))])
+    assert with_nan.scale == pytest.approx(s)
+    with pytest.raises(MocapgraphError, match="2 cameras have centres in both; aligning by camera centres needs 3"):
+        align_camera_centres([est[:1], est[1:2], np.full((1, 3), np.nan)], [ref[:1], ref[1:2], ref[2:3]])
+    with pytest.raises(MocapgraphError, match="collinear"):
+        align_camera_centres([np.array([[0.0, 0, k]]) for k in range(3)], [np.array([[1.0, 0, k]]) for k in range(3)])

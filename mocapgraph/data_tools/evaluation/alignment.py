@@ -1,5 +1,6 @@
-"""Similarity alignment of point sets and trajectories: Umeyama's least squares and SmartMocap's
-normalised Procrustes recipe for camera trajectories.
+"""Similarity alignment of point sets and trajectories: Umeyama's least squares (of points, and of
+camera centres with every camera weighing the same) and SmartMocap's normalised Procrustes recipe
+for camera trajectories.
 
 A :class:`Similarity` maps a point ``x`` to ``scale · R x + t`` (metres, ``R`` a proper rotation).
 Both solvers return the similarity that maps the *first* argument (source / estimate) onto the
@@ -243,3 +244,44 @@ def procrustes_trajectory(
         )
     scale = ref_norm / est_norm
     return Similarity(scale, Q, ref_mean - scale * Q @ est_mean)
+
+
+MIN_ALIGNMENT_CAMERAS = 3
+"""Camera centres of at least this many cameras fix a similarity (two leave the rotation about
+their baseline free)."""
+
+
+def align_camera_centres(est_centres, ref_centres, with_scale: bool = True) -> Similarity:
+    """The similarity (rigid if ``with_scale`` is False) mapping estimated camera centres onto
+    reference ones, each camera weighing the same however many frames it has (Umeyama).
+
+    Args:
+        est_centres: per camera, ``(N_c, 3)`` estimated centres (the ``world_T_camera``
+            translations), any frame and scale; NaN rows ignored. A static camera may give one row
+            or the same row at each of its frames.
+        ref_centres: per camera, ``(N_c, 3)`` the reference centres at the same frames, metres.
+        with_scale: estimate the scale; else ``scale = 1`` (how far a result is from metric).
+
+    Returns:
+        :class:`Similarity` with ``apply(est) ≈ ref``.
+
+    Raises:
+        MocapgraphError: the lists' lengths or a camera's shapes differ; fewer than
+            :data:`MIN_ALIGNMENT_CAMERAS` cameras with a finite pair; the centres collinear.
+    """
+    if len(est_centres) != len(ref_centres):
+        raise MocapgraphError(f"est_centres/ref_centres: {len(est_centres)} cameras against {len(ref_centres)}")
+    sources, targets, weights = [], [], []
+    for c, (est, ref) in enumerate(zip(est_centres, ref_centres)):
+        est = check_array(est, Where(f"est_centres[{c}]"), (None, 3), allow_nan=True)
+        ref = check_array(ref, Where(f"ref_centres[{c}]"), (est.shape[0], 3), allow_nan=True)
+        usable = _finite_rows(est) & _finite_rows(ref)
+        if usable.any():
+            sources.append(est[usable])
+            targets.append(ref[usable])
+            weights.append(np.full(int(usable.sum()), 1.0 / usable.sum()))
+    if len(sources) < MIN_ALIGNMENT_CAMERAS:
+        raise MocapgraphError(
+            f"est_centres/ref_centres: {len(sources)} cameras have centres in both; aligning by camera centres needs {MIN_ALIGNMENT_CAMERAS}"
+        )
+    return umeyama(np.concatenate(sources), np.concatenate(targets), with_scale, np.concatenate(weights))

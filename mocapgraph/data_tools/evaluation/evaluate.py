@@ -9,7 +9,7 @@ import numpy as np
 
 from mocapgraph.body import load_body_model
 from mocapgraph.data_tools.evaluation import metrics as M
-from mocapgraph.data_tools.evaluation.alignment import Similarity, procrustes_trajectory, umeyama
+from mocapgraph.data_tools.evaluation.alignment import MIN_ALIGNMENT_CAMERAS, Similarity, align_camera_centres, procrustes_trajectory, umeyama
 from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import PER_FRAME_CAMERA, CameraTrack, Result
@@ -34,6 +34,21 @@ class Evaluation:
     per_frame: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+def matched_cameras(result: Result, capture: Capture) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per camera with ground-truth poses, its estimated and true ``world_T_camera`` ``(N, 4, 4)``
+    at the result's camera timestamps that lie within half a frame of one of the camera's frames."""
+    out = {}
+    for name, track in result.cameras.items():
+        truth = capture.ground_truth.cameras.get(name)
+        if truth is None:
+            continue
+        cam = capture.camera(name)
+        cidx = match_times(cam.timestamps, track.timestamps, tolerance=0.5 / cam.frame_rate)
+        ok = cidx >= 0
+        out[name] = (track.world_T_camera[ok], truth[cidx[ok]])
+    return out
+
+
 def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_joints: np.ndarray) -> tuple[Similarity, str]:
     """The map from the result's world frame into the capture's, and its description."""
     identity = Similarity(1.0, np.eye(3), np.zeros(3))
@@ -47,6 +62,12 @@ def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_join
             raise MocapgraphError(f"result world frame {frame!r}: the capture has no ground-truth poses for camera {name!r}")
         T = poses[0]
         return Similarity(1.0, T[:3, :3], T[:3, 3]), f"rigid: camera {name}'s true pose at its first frame"
+    cameras = {n: pair for n, pair in matched_cameras(result, capture).items() if len(pair[0])}
+    if not result.has_body_parameters and len(cameras) >= MIN_ALIGNMENT_CAMERAS:
+        # Without a body model the joints are points a detector placed (a hip keypoint is not the
+        # hip joint), while camera centres are what a self-calibration estimates.
+        fit = align_camera_centres([e[:, :3, 3] for e, _ in cameras.values()], [r[:, :3, 3] for _, r in cameras.values()])
+        return fit, f"similarity (Umeyama with scale over the centres of {len(cameras)} cameras; scale {fit.scale:.3f})"
     usable = np.isfinite(est_joints).all(-1)
     if usable.sum() < 3:
         return identity, "none possible (fewer than 3 estimated joints)"
@@ -97,8 +118,10 @@ def matched_truth(result: Result, gt) -> tuple[np.ndarray, np.ndarray]:
 
 def aligned(result: Result, capture: Capture) -> tuple[Result, str]:
     """The result moved into the capture's world frame as its metrics' definitions say (rigid
-    per frame for ``camera_per_frame``, rigid for ``camera:``, a similarity over all joints for
-    other frames, nothing for ``capture``), and a description of the alignment."""
+    per frame for ``camera_per_frame``, rigid for ``camera:``, nothing for ``capture``; for other
+    frames a similarity over the camera centres when the result has no body parameters and at
+    least :data:`~mocapgraph.data_tools.evaluation.alignment.MIN_ALIGNMENT_CAMERAS` of its cameras
+    have ground truth, else over all joints), and a description of the alignment."""
     gt = capture.ground_truth
     if gt is None:
         raise MocapgraphError(f"capture {capture.name!r} has no ground truth to evaluate against")
@@ -154,15 +177,8 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         per_frame["mpjpe_keypoints_m"] = M.mpjpe_m(est_kp, ref_kp[:, mapped]).per_item
 
     est_cams, ref_cams, moving_pos, moving_ref, static_est, static_ref = [], [], [], [], [], []
-    for name, track in result.cameras.items():
-        truth = gt.cameras.get(name)
-        if truth is None:
-            continue
+    for name, (est, ref) in matched_cameras(result, capture).items():
         cam = capture.camera(name)
-        cidx = match_times(cam.timestamps, track.timestamps, tolerance=0.5 / cam.frame_rate)
-        ok = cidx >= 0
-        est = track.world_T_camera[ok]
-        ref = truth[cidx[ok]]
         est_cams.append(est)
         ref_cams.append(ref)
         out[f"mcpe_m.{name}"] = float(M.mcpe_m(est, ref))
