@@ -247,3 +247,33 @@ def test_bad_input_is_one_clear_error(scene):
         E.pair_tables(scene["noisy"], scene["w"], scene["Ks"], {}, NAMES[:5], cap_px=15.0)
     with pytest.raises(MocapgraphError, match="max_rounds"):
         E.resolve_swaps(scene["noisy"], scene["w"], scene["Ks"], NAMES, threshold_px=15.0, max_rounds=0)
+
+
+def test_pair_from_poses_fits_exact_projections():
+    """Known poses give a geometry whose Sampson distances of exact projections are zero, and
+    whose relative pose maps camera a's coordinates to b's."""
+    from mocapgraph.data_tools.geometry.epipolar import pair_from_poses, sampson_px
+
+    rng = np.random.default_rng(3)
+    K = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
+
+    def look(centre):
+        z = -centre / np.linalg.norm(centre)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = np.column_stack([x, np.cross(z, x), z]), centre
+        return T
+
+    Ta, Tb = look(np.array([4.0, 0.5, 1.5])), look(np.array([-1.0, 3.8, 1.2]))
+    X = rng.normal(scale=0.5, size=(50, 3))
+    pix = []
+    for T in (Ta, Tb):
+        p = (X - T[:3, 3]) @ T[:3, :3]
+        pix.append(p[:, :2] / p[:, 2:] @ K[:2, :2].T + K[:2, 2])
+    pair = pair_from_poses(0, 1, Ta, Tb, K, K)
+    assert np.max(sampson_px(pair.F, pix[0], pix[1])) < 1e-6
+    Xa = (X - Ta[:3, 3]) @ Ta[:3, :3]
+    Xb = (X - Tb[:3, 3]) @ Tb[:3, :3]
+    scale = np.linalg.norm(Tb[:3, 3] - Ta[:3, 3])
+    np.testing.assert_allclose(Xa @ pair.R.T + scale * pair.t, Xb, atol=1e-9)

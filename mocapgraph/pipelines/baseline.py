@@ -19,8 +19,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
+from mocapgraph.data_tools.geometry.epipolar import apply_labels, resolve_swaps
 from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.data_tools.geometry.triangulation import (
     DEFAULT_MAX_PAIRS,
@@ -30,9 +32,10 @@ from mocapgraph.data_tools.geometry.triangulation import (
     triangulate_ransac,
 )
 from mocapgraph.data_tools.io.capture import Camera, Capture
-from mocapgraph.data_tools.io.result import Result, options_parameters
+from mocapgraph.data_tools.io.result import CameraTrack, Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.pipelines import uncalibrated_baseline
+from mocapgraph.pipelines.results import swap_notes
 from mocapgraph.pipelines.uncalibrated_baseline import UncalibratedOptions, run_uncalibrated_baseline
 
 log = logging.getLogger(__name__)
@@ -53,6 +56,10 @@ class Triangulation:
             the undistorted image; NaN where the point is unknown.
         cameras: ``(C,)`` camera names, the order of ``inliers``' second axis.
         detector: name of the detector used.
+        swaps: ``(C, T)`` the left/right labelling each camera's detections took
+            (:data:`~mocapgraph.body.labelling.SWAP_KINDS` codes, 0 as detected), or None
+            without the swap check.
+        frames: ``(C, T)`` each camera's frame at each reference time, -1 where it has none.
     """
 
     timestamps: np.ndarray
@@ -62,6 +69,8 @@ class Triangulation:
     reprojection_error_px: np.ndarray
     cameras: tuple[str, ...] = ()
     detector: str = ""
+    swaps: np.ndarray | None = None
+    frames: np.ndarray | None = None
 
 
 @dataclass
@@ -71,6 +80,7 @@ class BaselineOptions:
     detector: str | None = None  # default: the first detector every camera has
     threshold_px: float = DEFAULT_THRESHOLD_PX  # RANSAC inlier threshold
     seed: int = 0  # RANSAC's pair sampling
+    swap_check: bool = True  # relabel left/right swaps against the calibrated cameras' epipolar geometry (static cameras)
     uncalibrated: bool = False  # estimate the static cameras' poses from the keypoints instead of reading them
     self_calibration: UncalibratedOptions = field(default_factory=UncalibratedOptions)  # used with uncalibrated
 
@@ -93,9 +103,19 @@ def run_baseline(capture: Capture, options: BaselineOptions | None = None, captu
         )
     if skipped:
         log.info("baseline: skipping uncalibrated cameras %s", ", ".join(skipped))
-    tri = triangulate_capture(replace(capture, cameras=calibrated), detector=options.detector, threshold_px=options.threshold_px, seed=options.seed)
+    tri = triangulate_capture(
+        replace(capture, cameras=calibrated), detector=options.detector, threshold_px=options.threshold_px, seed=options.seed, swap_check=options.swap_check
+    )
     T = len(tri.timestamps)
     known = np.isfinite(tri.points).all(axis=2)
+    tracks, notes = {}, []
+    if tri.swaps is not None:
+        for c, cam in enumerate(calibrated):
+            has = tri.frames[c] >= 0
+            ext = np.asarray(cam.extrinsics, dtype=float)
+            poses = np.repeat(ext[:1], has.sum(), axis=0) if len(ext) == 1 else ext[tri.frames[c][has]]
+            tracks[cam.name] = CameraTrack(tri.timestamps[has], poses, tri.swaps[c][has])
+        notes = swap_notes(list(tri.cameras), {c: np.where(tri.frames[c] >= 0, tri.swaps[c], -1) for c in range(len(calibrated))})
     return Result(
         pipeline="baseline",
         capture=capture_label or str(capture.path or capture.name),
@@ -109,7 +129,9 @@ def run_baseline(capture: Capture, options: BaselineOptions | None = None, captu
             **options_parameters(replace(options, self_calibration=None)), "detector": tri.detector, "threshold_px": float(options.threshold_px),
             "cameras": list(tri.cameras), "skipped_cameras": skipped, "triangulated_share": float(known.mean()),
             "median_reprojection_error_px": float(np.nanmedian(tri.reprojection_error_px)) if known.any() else float("nan"),
+            "notes": notes,
         },
+        cameras=tracks,
     )  # fmt: skip
 
 
@@ -122,7 +144,7 @@ def summary(result: Result) -> str:
     return (
         f"{skipped}baseline: {len(result.timestamps)} frames from {len(p['cameras'])} cameras ({p['detector']}, {result.keypoint_format}); "
         f"{p['triangulated_share']:.0%} of keypoints triangulated, median reprojection error {p['median_reprojection_error_px']:.1f} px"
-    )
+    ) + "".join(f"\n  note: {note}" for note in p.get("notes", []))
 
 
 def triangulate_capture(
@@ -134,6 +156,7 @@ def triangulate_capture(
     max_time_offset_s: float | None = None,
     min_views: int = 2,
     refine: bool = True,
+    swap_check: bool = False,
 ) -> Triangulation:
     """Triangulate one detector's keypoints from a capture whose cameras are all calibrated.
 
@@ -154,6 +177,9 @@ def triangulate_capture(
         max_time_offset_s: largest gap between a camera's frame and the reference time, seconds.
         min_views: fewest agreeing views for a point.
         refine: Gauss-Newton refinement of each point.
+        swap_check: first relabel each static camera-frame's left/right swaps against the other
+            static cameras' known epipolar geometry (moving cameras stay as detected)
+            (:func:`~mocapgraph.data_tools.geometry.epipolar.resolve_swaps` with ``poses``).
 
     Returns:
         A :class:`Triangulation` in the capture's world frame.
@@ -209,6 +235,15 @@ def triangulate_capture(
     if np.any(w < 0):
         c = int(np.argwhere(w < 0)[0][0])
         raise MocapgraphError(f"camera {cams[c].name!r}: detector {name!r} has negative confidences")
+    swaps = None
+    static = [c for c, cam in enumerate(cams) if len(np.asarray(cam.extrinsics)) == 1]
+    if swap_check and len(static) >= 2:
+        # moving cameras are left as detected: their epipolar geometry changes frame by frame
+        names = get_format(fmt).names
+        poses = np.stack([np.asarray(cams[c].extrinsics, dtype=float)[0] for c in static])
+        swaps = np.zeros((C, T), dtype=np.int8)
+        swaps[static] = resolve_swaps(x[static], w[static], np.stack([cams[c].K for c in static]), names, threshold_px=threshold_px, poses=poses).labels
+        x, w = apply_labels(x, swaps, names), apply_labels(w, swaps, names)
 
     rng = np.random.default_rng(seed)
     points = np.full((T, K_pts, 3), np.nan)
@@ -235,6 +270,8 @@ def triangulate_capture(
         reprojection_error_px=errors,
         cameras=tuple(c.name for c in cams),
         detector=name,
+        swaps=swaps,
+        frames=frame_of,
     )
 
 

@@ -275,6 +275,19 @@ def _check_rig(x, w, Ks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x, np.where(np.isfinite(x).all(-1), w, 0.0), Ks
 
 
+def pair_from_poses(a: int, b: int, world_T_a, world_T_b, K_a, K_b) -> PairGeometry:
+    """The epipolar geometry of calibrated cameras ``a < b`` from their poses (``world_T_camera``,
+    OpenCV axes), as :func:`relative_pose` would estimate it (no correspondences counted)."""
+    b_T_a = np.linalg.inv(np.asarray(world_T_b, dtype=float)) @ np.asarray(world_T_a, dtype=float)
+    R, t = b_T_a[:3, :3], b_T_a[:3, 3]
+    norm = np.linalg.norm(t)
+    if norm < 1e-9:
+        raise MocapgraphError(f"cameras {a} and {b} share a centre: no epipolar geometry")
+    t = t / norm
+    E = _skew(t) @ R
+    return PairGeometry(a, b, E, R, t, fundamental_matrix(E, K_a, K_b), 0, 0, 0.0)
+
+
 def pair_geometries(x, w, Ks, *, threshold_px: float, previous: dict[tuple[int, int], PairGeometry] | None = None) -> dict[tuple[int, int], PairGeometry]:
     """:func:`relative_pose` of every pair ``a < b`` of a rig from all its frames' co-visible
     keypoints (``w > 0`` in both); pairs without a geometry are left out. ``previous``: the
@@ -552,6 +565,7 @@ def resolve_swaps(
     threshold_px: float,
     kinds: Sequence[str] = SWAP_KINDS[1:],
     max_rounds: int = 5,
+    poses=None,
 ) -> SwapCheck:
     """Essential matrices and left/right labels of a rig, estimated in turn until they agree.
 
@@ -573,6 +587,8 @@ def resolve_swaps(
             the swap costs.
         kinds: which swaps to consider.
         max_rounds: estimate-and-relabel rounds at most.
+        poses: ``(C, 4, 4)`` world_T_camera of calibrated static cameras: their geometry is
+            taken from the poses (:func:`pair_from_poses`) and only the labels are decided.
     """
     x, w, Ks = _check_rig(x, w, Ks)
     if max_rounds < 1:
@@ -602,6 +618,11 @@ def resolve_swaps(
         # (the next round starts from it).
         return absolute_labels(new, seen, *pair_anatomy(x, w, Ks, pairs, names, new), kinds)
 
+    if poses is not None:
+        # calibrated cameras: their geometry is known, only the labels are to find
+        poses = as_checked_array(poses, "poses (world_T_camera)", (C, 4, 4))
+        pairs = {(a, b): pair_from_poses(a, b, poses[a], poses[b], Ks[a], Ks[b]) for a in range(C) for b in range(a + 1, C)}
+        return SwapCheck(relabel(pairs), pairs, 1, True)
     converged = False
     rounds = 0
     history = [labels]
@@ -636,6 +657,7 @@ __all__ = [
     "fundamental_matrix",
     "labelling_cost",
     "normalised",
+    "pair_from_poses",
     "pair_geometries",
     "relative_pose",
     "resolve_swaps",
