@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapgraph.body.skeleton import PARENTS
 from mocapgraph.data_tools.evaluation.evaluate import Evaluation, aligned
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import Result
@@ -25,6 +26,47 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def plot_result(result: Result, path: Path, poses: int = 5) -> Path:
+    """A result in 3D, in its own world frame: every camera's track (its centre over time, and
+    its viewing direction at its first frame) and the body's skeleton at ``poses`` instants
+    spread over the capture, coloured by time. Written atomically (a PNG at ``path``)."""
+    plt = _pyplot()
+    fig = plt.figure(figsize=(8, 7))
+    ax = fig.add_subplot(projection="3d")
+    joints = result.joints
+    known = np.flatnonzero(np.isfinite(joints).all(axis=(1, 2)))
+    points = [joints[known].reshape(-1, 3)] if len(known) else []
+    colours = plt.cm.viridis(np.linspace(0, 1, max(poses, 1)))
+    for colour, t in zip(colours, known[np.linspace(0, len(known) - 1, min(poses, len(known))).astype(int)] if len(known) else []):
+        for j, p in enumerate(PARENTS):
+            if p >= 0:
+                ax.plot(*joints[t, [p, j]].T, color=colour, lw=1.5)
+        ax.text(*joints[t, 15], f"{result.timestamps[t]:.1f} s", fontsize=7, color=colour)
+    for name, track in result.cameras.items():
+        centres = track.world_T_camera[:, :3, 3]
+        ax.plot(*centres.T, lw=1)
+        axis = track.world_T_camera[0, :3, 2]
+        ax.quiver(*centres[0], *axis, length=0.5, color="black", lw=1)
+        ax.text(*centres[0], name, fontsize=8)
+        points.append(centres)
+    if points:
+        every = np.concatenate(points)
+        every = every[np.isfinite(every).all(axis=1)]
+        centre, half = every.mean(axis=0), max(np.ptp(every, axis=0).max() / 2, 0.5)
+        for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+            setter(c - half, c + half)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.set_title(f"{result.pipeline}: {len(result.cameras)} cameras, {len(known)} body states; world: {result.world_frame}", fontsize=9)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    tmp.replace(path)
+    return path
 
 
 def plot_root_trajectory(results: dict[str, Result], capture: Capture, path: Path) -> Path:
