@@ -266,6 +266,35 @@ def test_reprojection_with_a_fixed_shape(scene):
         )  # fmt: skip
 
 
+def test_labelling_keeps_the_dimension_with_unmapped_points(body):
+    """BlazePose's finger points have no body point (unmapped): a labelled factor keeps one row
+    pair per detected point, whatever labelling each camera takes, like the unlabelled one."""
+    rng = np.random.default_rng(5)
+    fmt = get_format("blazepose33")
+    cache = ShapeTableCache(body, fmt.name)
+    root, pose, shape = standing_root(rng), rng.normal(scale=0.2, size=63), body.default_shape
+    cameras = np.stack([look_at_body(a) for a in (0.2, 2.0)])
+    truth = body.forward(shape, root[None], pose.reshape(1, 21, 3), keypoints=fmt.name).keypoints[0]
+    p = np.einsum("cyx,cky->ckx", cameras[:, :3, :3], truth[None] - cameras[:, None, :3, 3])
+    observed = p[..., :2] / p[..., 2:] * INTRINSICS[:2] + INTRINSICS[2:] + rng.normal(scale=2.0, size=(2, 33, 2))
+    observed[1] = observed[1, swap_permutation(fmt.names, "body")]
+    weights = np.ones((2, 33))
+    values = gtsam.Values()
+    values.insert(root_key(0), gtsam.Pose3(root))
+    values.insert(pose_key(0), pose)
+    scale = RobustScale(8.0)
+    args = (body, cache, root_key(0), pose_key(0), None, [None, None], list(cameras), np.tile(INTRINSICS, (2, 1)), observed, weights, fmt.name, scale)
+    plain = reprojection_factor(*args, fixed_shape=shape)
+    perms = np.stack([swap_permutation(fmt.names, k) for k in SWAP_KINDS])
+    labelling = Labelling(perms, cost=2.0)
+    factor = reprojection_factor(*args, fixed_shape=shape, labelling=labelling)
+    assert factor.dim() == plain.dim() + 1 == 2 * 2 * 33 + 1
+    assert len(factor.whitenedError(values)) == factor.dim()
+    assert labelling.choice.tolist() == [0, 1]
+    assert factor.error(values) < plain.error(values)
+    assert_jacobians(factor, values)
+
+
 def labelled_factor(scene, observed, labelling):
     return reprojection_factor(
         scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],

@@ -221,7 +221,7 @@ class _ReprojectionError:
         self.labelling = labelling
         self.focals = focals  # [(camera index, key)]: cameras whose focal length is a variable
 
-    def _choose(self, entry, args, weights) -> np.ndarray:
+    def _choose(self, entry, args) -> np.ndarray:
         """Per camera, the labelling whose robust cost is lowest at the current values (ties: as
         detected), the cost of a relabelling included. One kernel pass without Jacobians gives the
         predicted pixels; every hypothesis is then scored in numpy."""
@@ -239,7 +239,7 @@ class _ReprojectionError:
             e = predicted - self.observed[:, perm]
             e2 = np.sum(e * e, axis=-1)
             rho = e2 if not np.isfinite(sigma2) else sigma2 * e2 / (sigma2 + e2)
-            w = weights[:, perm]
+            w = self.weights[:, perm] * entry.table.mapped[None]
             ok = in_front & np.isfinite(e2) & (w > 0)
             costs[h] = 0.5 * np.sum(np.where(ok, w * w * np.where(ok, rho, 0.0), 0.0), axis=1)
         costs[1:] += self.labelling.cost
@@ -292,13 +292,16 @@ class _ReprojectionError:
         observed, rows = self.observed, self.rows
         try:
             if self.labelling is not None:
-                self.labelling.choice = choice = self._choose(entry, args, weights)
+                # the body's point k is compared with the detection labelled perm[k]; whether the
+                # body has a point k at all (mapped) goes with k, not with the detection
+                self.labelling.choice = choice = self._choose(entry, args)
                 perm = self.labelling.permutations[choice]  # (C, K)
                 observed = np.ascontiguousarray(np.take_along_axis(observed, perm[..., None], axis=1))
-                weights = np.ascontiguousarray(np.take_along_axis(weights, perm, axis=1))
+                detected = np.take_along_axis(self.weights, perm, axis=1)
+                weights = np.ascontiguousarray(detected if entry.all_mapped else detected * entry.table.mapped[None])
                 # A permutation within each camera keeps its number of usable points: the
                 # residual's dimension does not change with the labelling, only which rows.
-                rows = np.flatnonzero(np.repeat((np.isfinite(observed).all(-1) & (weights > 0)).ravel(), 2))
+                rows = np.flatnonzero(np.repeat((np.isfinite(observed).all(-1) & (detected > 0)).ravel(), 2))
             residual, jac, _ = self.kernel(*entry.arrays, *args, observed, weights, self.scale.sigma_px, self.min_depth, H is not None)
         except ValueError as exc:
             raise MocapgraphError(str(exc)) from None
