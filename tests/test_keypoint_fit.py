@@ -4,6 +4,8 @@ and the pixel medians against a direct projection."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,7 +15,7 @@ from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, with_offset
 from mocapgraph.body.native import forward_kinematics
 from mocapgraph.body.skeleton import JOINT_NAMES
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.graphs.keypoint_fit import PRIOR_FRAMES, estimate_offsets, reprojection_medians
+from mocapgraph.graphs.keypoint_fit import PRIOR_FRAMES, estimate_offsets, outlier_views, reprojection_medians
 from mocapgraph.graphs.state_model import CameraDetections, CameraInfo, Estimate, build_state_model
 
 FMT = "coco17"
@@ -126,3 +128,19 @@ def test_reprojection_medians(body):
         pa, pb = a @ T_cw[:3, :3].T + T_cw[:3, 3], b @ T_cw[:3, :3].T + T_cw[:3, 3]
         shifts.append(np.linalg.norm(1000.0 * (pa[..., :2] / pa[..., 2:] - pb[..., :2] / pb[..., 2:]), axis=-1)[:, 11])
     assert plain["keypoint"][FMT]["left_hip"] == pytest.approx(np.median(np.concatenate(shifts)), abs=0.01)
+
+
+def test_views_of_someone_else_are_outliers_and_left_out(body):
+    """Three frames of one camera replaced by a body 40 cm to the side: exactly those views are
+    outliers at the true solve, and the model without them has no observation there."""
+    model, truth = scene(body, np.zeros((17, 3)))
+    bad = [10, 11, 12]
+    states = []
+    for i, obs in enumerate(model.states):
+        states.append([replace(o, observed=o.observed + 80.0) if (o.camera == 2 and o.frame in bad) else o for o in obs])
+    model = replace(model, states=states)
+    views = outlier_views(body, model, truth)
+    assert list(views) == [2] and views[2].tolist() == bad
+    kept = model.without(views)
+    assert sum(len(obs) for obs in kept.states) == sum(len(obs) for obs in model.states) - 3
+    assert not any(o.camera == 2 and o.frame in bad for obs in kept.states for o in obs)

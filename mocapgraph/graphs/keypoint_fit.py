@@ -8,7 +8,8 @@ frames saw it and dropped when larger than any format's measured offset, is the 
 estimate: :func:`estimate_offsets`. A pipeline solves again with it (:class:`~mocapgraph.graphs.body_graph.BodyGraph`'s
 ``keypoint_offsets``), a step of a joint estimation of body and offsets by alternation.
 
-:func:`reprojection_medians` reports a fit's pixel errors per camera and per keypoint.
+:func:`reprojection_medians` reports a fit's pixel errors per camera and per keypoint, and
+:func:`outlier_views` finds the views it explains far worse than the rest.
 """
 
 from __future__ import annotations
@@ -110,12 +111,9 @@ def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt
     return OffsetFit(fmt, offsets, frames, dropped)
 
 
-def reprojection_medians(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None) -> dict:
-    """Median pixel distance between each observation and the solved body's projection (with
-    the formats' ``offsets``): ``{"camera": {name: px}, "keypoint": {format: {point: px}}, "all": px}``,
-    over the observations at a state (not interpolated) with confidence > 0."""
-    per_camera: dict[int, list] = {}
-    per_point: dict[str, dict[int, list]] = {}
+def _observation_errors(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None):
+    """Per observation at a state (not interpolated): ``(state, observation, (K,) pixel errors,
+    (K,) usable)``, the body posed with the formats' ``offsets``."""
     posed = {fmt: _posed(body, estimate, fmt, (offsets or {}).get(fmt))[1].keypoints for fmt in model.formats}
     for i, obs in enumerate(model.states):
         for o in obs:
@@ -126,14 +124,44 @@ def reprojection_medians(body: BodyModel, model: StateModel, estimate: Estimate,
             with np.errstate(divide="ignore", invalid="ignore"):
                 uv = p[:, :2] / p[:, 2:] @ _intrinsics(model, estimate, o.camera)[:2, :2].T + model.cameras[o.camera].K[:2, 2]
             error = np.linalg.norm(uv - o.observed, axis=1)
-            use = (o.weights > 0) & np.isfinite(error) & (p[:, 2] > 0)
-            per_camera.setdefault(o.camera, []).extend(error[use])
-            points = per_point.setdefault(o.fmt, {})
-            for k in np.flatnonzero(use):
-                points.setdefault(int(k), []).append(error[k])
+            yield i, o, error, (o.weights > 0) & np.isfinite(error) & (p[:, 2] > 0)
+
+
+def reprojection_medians(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None) -> dict:
+    """Median pixel distance between each observation and the solved body's projection (with
+    the formats' ``offsets``): ``{"camera": {name: px}, "keypoint": {format: {point: px}}, "all": px}``,
+    over the observations at a state (not interpolated) with confidence > 0."""
+    per_camera: dict[int, list] = {}
+    per_point: dict[str, dict[int, list]] = {}
+    for _, o, error, use in _observation_errors(body, model, estimate, offsets):
+        per_camera.setdefault(o.camera, []).extend(error[use])
+        points = per_point.setdefault(o.fmt, {})
+        for k in np.flatnonzero(use):
+            points.setdefault(int(k), []).append(error[k])
     every = [e for errors in per_camera.values() for e in errors]
     return {
         "camera": {model.cameras[c].name: round(float(np.median(e)), 2) for c, e in sorted(per_camera.items())},
         "keypoint": {fmt: {_names(fmt)[k]: round(float(np.median(e)), 2) for k, e in sorted(pts.items())} for fmt, pts in per_point.items()},
         "all": round(float(np.median(every)), 2) if every else float("nan"),
     }
+
+
+OUTLIER_FACTOR = 4.0
+"""A view is an outlier when its median pixel error exceeds this many times the median of all views…"""
+OUTLIER_FLOOR_PX = 25.0
+"""…and this many pixels: a detector that followed someone else, or lost the person, for a frame."""
+
+
+def outlier_views(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None) -> dict[int, np.ndarray]:
+    """Per camera, the frames whose observation the solved body explains far worse than the others
+    (median pixel error above :data:`OUTLIER_FACTOR` times the median view's and
+    :data:`OUTLIER_FLOOR_PX`): whole views to leave out of a second solve."""
+    views = [(o.camera, o.frame, float(np.median(error[use]))) for _, o, error, use in _observation_errors(body, model, estimate, offsets) if use.any()]
+    if not views:
+        return {}
+    limit = max(OUTLIER_FACTOR * float(np.median([e for _, _, e in views])), OUTLIER_FLOOR_PX)
+    out: dict[int, list[int]] = {}
+    for c, j, e in views:
+        if e > limit:
+            out.setdefault(c, []).append(j)
+    return {c: np.array(sorted(frames)) for c, frames in out.items()}

@@ -242,6 +242,12 @@ class StateModel:
             states.append(out)
         return replace(self, states=states)
 
+    def without(self, views: dict[int, np.ndarray]) -> StateModel:
+        """The same model without the observations of camera ``c`` at its frames ``views[c]``
+        (the frames keep their states, so a camera's variables stay where they were)."""
+        drop = {(c, int(j)) for c, frames in views.items() for j in frames}
+        return replace(self, states=[[o for o in obs if (o.camera, o.frame) not in drop] for obs in self.states])
+
     def with_moving(self, moving) -> StateModel:
         """The same model with camera ``c`` moving where ``moving[c]``."""
         return replace(self, cameras=[replace(cam, moving=bool(m)) for cam, m in zip(self.cameras, moving)])

@@ -48,7 +48,7 @@ from mocapgraph.graphs.initialisation import (
     view_bodies,
     view_swaps,
 )
-from mocapgraph.graphs.keypoint_fit import estimate_offsets, reprojection_medians
+from mocapgraph.graphs.keypoint_fit import estimate_offsets, outlier_views, reprojection_medians
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.executors import make_executor
@@ -334,12 +334,18 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     estimate.log = list(solved_final.log)
     offsets: dict[str, np.ndarray] = {}
     if options.keypoint_offsets:
-        # the keypoints' definitions seen by the solve, then the solve again with them
-        fits = [estimate_offsets(body, model.relabelled(bg.relabelled(estimate)), estimate, fmt) for fmt in model.formats]
+        # the keypoints' definitions seen by the solve, then the solve again with them, without
+        # the views it could not explain at all (a detector on someone else for a frame)
+        solved_model = model.relabelled(bg.relabelled(estimate))
+        fits = [estimate_offsets(body, solved_model, estimate, fmt) for fmt in model.formats]
         offsets = {fit.fmt: fit.offsets for fit in fits}
         for fit in fits:
             notes.append(f"{fit.fmt} keypoints: definition offsets estimated from {int(fit.frames.max(initial=0))} frames, up to "
                          f"{100 * np.linalg.norm(fit.offsets, axis=1).max(initial=0):.1f} cm" + (f"; {', '.join(fit.dropped)} implausible, not used" if fit.dropped else ""))  # fmt: skip
+        outliers = outlier_views(body, solved_model, estimate, offsets)
+        for c, frames in sorted(outliers.items()):
+            notes.append(f"camera {model.names[c]}: {len(frames)} frames left out of the last pass, explained far worse than the others (frames {_ranges(frames)})")
+        model = model.without(outliers)
         bg, graph, solved_final = final_pass(model, body, options, learned, estimate, offsets, options.offset_iterations)
         estimate = bg.read(solved_final.values, estimate)
         estimate.log += list(solved_final.log)
@@ -361,6 +367,12 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         keypoint_offsets_m={fit.fmt: fit.as_table() for fit in fits} if options.keypoint_offsets else {},
     )
     return result
+
+
+def _ranges(frames: np.ndarray) -> str:
+    """``[3, 4, 5, 9]`` → ``"3-5, 9"``."""
+    runs = np.split(frames, np.flatnonzero(np.diff(frames) > 1) + 1)
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}" for r in runs if len(r))
 
 
 def final_pass(model: StateModel, body: BodyModel, options: SmartmocapOptions, learned: LearnedPriors, start: Estimate, offsets: dict, iterations: int):
