@@ -144,3 +144,23 @@ def test_views_of_someone_else_are_outliers_and_left_out(body):
     kept = model.without(views)
     assert sum(len(obs) for obs in kept.states) == sum(len(obs) for obs in model.states) - 3
     assert not any(o.camera == 2 and o.frame in bad for obs in kept.states for o in obs)
+
+
+def test_unmapped_points_are_not_reported(body):
+    """BlazePose's finger and mouth points have no body counterpart: the report leaves them out."""
+    model, truth = scene(body, np.zeros((17, 3)))
+    blaze = get_format("blazepose33")
+    states = []
+    for obs in model.states:
+        out = []
+        for o in obs:
+            observed = np.full((33, 2), 300.0)  # unmapped points anywhere
+            weights = np.ones(33)
+            for k, name in enumerate(get_format(FMT).names):
+                observed[blaze.names.index(name)] = o.observed[k]
+            out.append(replace(o, fmt=blaze.name, observed=observed, weights=weights))
+        states.append(out)
+    report = reprojection_medians(body, replace(model, states=states), truth)
+    points = report["keypoint"]["blazepose33"]
+    assert "left_pinky" not in points and "mouth_left" not in points
+    assert points["left_hip"] < 1e-6 and points["nose"] < 1e-6

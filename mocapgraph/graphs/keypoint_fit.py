@@ -113,8 +113,11 @@ def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt
 
 def _observation_errors(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None):
     """Per observation at a state (not interpolated): ``(state, observation, (K,) pixel errors,
-    (K,) usable)``, the body posed with the formats' ``offsets``."""
-    posed = {fmt: _posed(body, estimate, fmt, (offsets or {}).get(fmt))[1].keypoints for fmt in model.formats}
+    (K,) usable)``, the body posed with the formats' ``offsets``; a point the body has no
+    counterpart for (unmapped, e.g. BlazePose's fingers) is never usable."""
+    posed = {fmt: _posed(body, estimate, fmt, (offsets or {}).get(fmt)) for fmt in model.formats}
+    mapped = {fmt: table.mapped for fmt, (table, _) in posed.items()}
+    posed = {fmt: fk.keypoints for fmt, (_, fk) in posed.items()}
     for i, obs in enumerate(model.states):
         for o in obs:
             if o.fraction != 0.0:
@@ -124,7 +127,7 @@ def _observation_errors(body: BodyModel, model: StateModel, estimate: Estimate, 
             with np.errstate(divide="ignore", invalid="ignore"):
                 uv = p[:, :2] / p[:, 2:] @ _intrinsics(model, estimate, o.camera)[:2, :2].T + model.cameras[o.camera].K[:2, 2]
             error = np.linalg.norm(uv - o.observed, axis=1)
-            yield i, o, error, (o.weights > 0) & np.isfinite(error) & (p[:, 2] > 0)
+            yield i, o, error, (o.weights > 0) & np.isfinite(error) & (p[:, 2] > 0) & mapped[o.fmt]
 
 
 def reprojection_medians(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None) -> dict:
