@@ -53,6 +53,13 @@ def cmd_bench_body(args) -> None:
             print(f"{key:22s} {value}")
 
 
+def cmd_bench_real(args) -> None:
+    from mocapgraph.benchmarks.real import bench_real, format_report
+
+    report = bench_real(args.clip)
+    print(json.dumps(report) if args.json else format_report(report))
+
+
 def add_parsers(subparsers) -> None:
     bench = group(subparsers, "bench", "speed and accuracy benchmarks", "bench_command")
     body = command(bench, "body", "native vs numpy posing with Jacobians, one run")
@@ -62,6 +69,10 @@ def add_parsers(subparsers) -> None:
     function_flags(body, bench_body, {"frames": "frames per batch", "min_seconds": ("time spent per variant, seconds", {"flag": "--seconds"})})
     body.add_argument("--json", action="store_true", help="print one JSON object")
     body.set_defaults(func=cmd_bench_body)
+    real = command(bench, "real", "SmartMocap and the uncalibrated baseline self-calibrating a real four-camera clip, against the lab's calibration; one run")
+    real.add_argument("--clip", type=Path, default=None, metavar="DIR", help="folder with tracks.npz and Calib.qca.txt (default: tests/data/real of the source tree)")
+    real.add_argument("--json", action="store_true", help="print one JSON object")
+    real.set_defaults(func=cmd_bench_real)
     for name, (help, target, extra) in BENCHES.items():
         parser = command(bench, name, f"{help}; one run, one JSON object")
         names = function_flags(parser, _function(target), {**COMMON, **extra})

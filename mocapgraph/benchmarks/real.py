@@ -1,0 +1,400 @@
+"""``mocapgraph bench real``: self-calibration on a real four-camera clip, against the lab's calibration.
+
+The clip (``tests/data/real`` of the source repository: Pose2Sim's ``Demo_MultiPerson``, four
+static cameras around a treadmill, 60 fps, 100 frames, two people; see its README) is a folder
+with every person track of every camera (``tracks.npz``,
+:mod:`mocapgraph.data_tools.tracking.track_files`) and the lab's Qualisys calibration
+(``Calib.qca.txt``). For the person the default rule picks (``largest``) and for every other
+person all cameras see, with the lab's intrinsics and with guessed ones (``f = 1.2 × max(w, h)``),
+SmartMocap (defaults) and the generic uncalibrated baseline self-calibrate the cameras; the
+poses are then compared with the lab's:
+
+- camera centres aligned to the lab's by a similarity (Umeyama, every camera weighing the same):
+  the position error (median over cameras, cm), the orientation error after the similarity's
+  rotation (median, degrees), the similarity's scale as the result's size error (%), and the
+  ground tilt (the angle between the result's world Z, mapped by the alignment, and the lab's Z;
+  the lab's floor is its z = 0: the standing person's heels triangulate 1-3 cm above it);
+- aligned by a rotation and translation only (no scale): the position error (cm), which is small
+  only when the result is metric;
+- the reprojection median (px) the pipeline reports, or computed here from the result's 3D
+  keypoints, cameras and focal lengths against the detections as it relabelled them;
+- frames relabelled (left/right swaps found) per camera, focal lengths estimated, run time;
+- whether the person fitted is the same person in every camera (:func:`same_person_check`).
+
+The ``goals`` say where SmartMocap should be: at or below the baseline on every camera error,
+the reprojection, the ground tilt and the scale (calibrated intrinsics), its cameras with guessed
+intrinsics within 2× of its calibrated run, and the same person in every camera. Swaps found are
+reported without a goal: the clip has no truth for them.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import mocapgraph
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
+from mocapgraph.data_tools.evaluation.alignment import MIN_ALIGNMENT_CAMERAS, align_camera_centres
+from mocapgraph.data_tools.evaluation.metrics import mcoe_rad, mcpe_m
+from mocapgraph.data_tools.geometry.association import MIN_VISIBILITY
+from mocapgraph.data_tools.geometry.camera_model import project_points, undistort_pixels
+from mocapgraph.data_tools.geometry.timing import match_times
+from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_points
+from mocapgraph.data_tools.io.calibration import CameraCalibration, intrinsics_only, read_calibration
+from mocapgraph.data_tools.io.capture import Capture, load_capture
+from mocapgraph.data_tools.io.result import Result
+from mocapgraph.data_tools.tracking.people import PersonChoice
+from mocapgraph.data_tools.tracking.track_files import TrackSet, load_track_set
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
+from mocapgraph.pipelines.uncalibrated_baseline import UncalibratedOptions, run_uncalibrated_baseline
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CLIP = Path(mocapgraph.__file__).resolve().parents[1] / "tests" / "data" / "real"
+"""The clip in the source repository (absent from an installed wheel)."""
+TRACKS_FILE = "tracks.npz"
+CALIBRATION_FILE = "Calib.qca.txt"
+PIPELINES = ("smartmocap", "baseline")
+INTRINSICS = ("calibrated", "guessed")
+ERROR_KEYS = (
+    "camera_cm", "camera_deg", "rigid_cm", "scale_error_pct", "ground_tilt_deg", "camera_cm_per_camera", "camera_deg_per_camera", "rigid_cm_per_camera",
+)  # fmt: skip
+COMPARED = ("camera_cm", "camera_deg", "rigid_cm", "reprojection_px", "ground_tilt_deg", "scale_error_pct")
+"""The metrics where SmartMocap should be at or below the baseline (the scale's by its size)."""
+GUESSED_FACTOR = 2.0
+"""With guessed intrinsics, cameras within this factor of the calibrated run's error."""
+MIN_CONFIDENCE = UncalibratedOptions().min_confidence
+"""Detections below this confidence are left out of the reprojection medians computed here."""
+
+
+# ---------------------------------------------------------------------------------------------
+# The clip
+
+
+def clip_directory(clip: str | Path | None = None) -> Path:
+    """The clip's folder (default :data:`DEFAULT_CLIP`), checked to hold its two files."""
+    directory = DEFAULT_CLIP if clip is None else Path(clip)
+    missing = [name for name in (TRACKS_FILE, CALIBRATION_FILE) if not (directory / name).is_file()]
+    if missing:
+        what = f"{directory}: {' and '.join(missing)} missing (a real clip is a folder with {TRACKS_FILE} and {CALIBRATION_FILE})"
+        if clip is None:
+            what += "; the clip ships with the source repository (tests/data/real), not with an installed package: pass --clip DIR"
+        raise MocapgraphError(what)
+    return directory
+
+
+def lab_calibration(clip: str | Path | None = None) -> list[CameraCalibration]:
+    """The clip's reference calibration: intrinsics, distortion and poses of every camera."""
+    return read_calibration(clip_directory(clip) / CALIBRATION_FILE)
+
+
+def load_clip(clip: str | Path | None = None) -> TrackSet:
+    """The clip's person tracks (:func:`~mocapgraph.data_tools.tracking.track_files.load_track_set`)."""
+    return load_track_set(clip_directory(clip) / TRACKS_FILE)
+
+
+def clip_capture(clip: str | Path | None, out: str | Path, person: str | int = "largest", intrinsics: str = "guessed") -> tuple[Path, PersonChoice]:
+    """A capture of one person of the clip, as ``mocapgraph detect`` would write it, the cameras
+    static and their poses withheld: ``intrinsics="calibrated"`` keeps the lab's intrinsics and
+    distortion, ``"guessed"`` leaves the capture to guess them (as without a calibration)."""
+    if intrinsics not in INTRINSICS:
+        raise MocapgraphError(f"intrinsics must be {' or '.join(repr(i) for i in INTRINSICS)}, got {intrinsics!r}")
+    known = intrinsics_only(lab_calibration(clip)) if intrinsics == "calibrated" else None
+    return load_clip(clip).write_capture(out, calibration=known, person=person)
+
+
+# ---------------------------------------------------------------------------------------------
+# Measures
+
+
+def _midpoints(keypoints: np.ndarray, names, K: np.ndarray, distortion) -> tuple[np.ndarray, np.ndarray]:
+    """``(..., K, 3)`` detections → undistorted pixels ``(..., M, 2)`` and confidences ``(..., M)``
+    of the midpoints of every left/right pair and of the midline points: the same whatever
+    left/right labels the detector gave (NaN / 0 where either point is below
+    :data:`~mocapgraph.data_tools.geometry.association.MIN_VISIBILITY`)."""
+    perm = swap_permutation(names, "body")
+    first = np.flatnonzero(np.arange(len(names)) <= perm)
+    pixels = undistort_pixels(keypoints[..., :2], K, distortion)
+    mid = 0.5 * (pixels[..., first, :] + pixels[..., perm[first], :])
+    conf = np.nan_to_num(np.minimum(keypoints[..., first, 2], keypoints[..., perm[first], 2]))
+    seen = conf >= MIN_VISIBILITY
+    return np.where(seen[..., None], mid, np.nan), np.where(seen, conf, 0.0)
+
+
+def same_person_check(tracks: TrackSet, lab: dict[str, CameraCalibration], choice: PersonChoice) -> dict:
+    """Whether the chosen person's tracks are one person in every camera, checked with the lab's calibration.
+
+    Per camera: the person's left/right midpoints (swap-proof) seen by the other cameras are
+    triangulated with the lab's poses and projected into it; the median distance (pixels,
+    undistorted) to the chosen track's midpoints, and to each other track's, says which of its
+    tracks is that person.
+
+    Returns:
+        ``{"cameras": {name: {"chosen_px", "nearest_other_px" (None without another track)}},
+        "same_person": the chosen track is the nearest in every camera, "tracks": {name: [...]}}``.
+    """
+    names = get_format(tracks.keypoint_format).names
+    cams = tracks.cameras
+    mids = {c: _midpoints(choice.keypoints[c], names, lab[c].K, lab[c].distortion) for c in cams}
+    out: dict = {"cameras": {}, "tracks": {c: list(choice.person.tracks.get(c, ())) for c in cams}}
+    for c in cams:
+        others = [o for o in cams if o != c]
+        P = np.stack([projection_matrix(lab[o].K, lab[o].world_T_camera) for o in others])
+        x = np.stack([mids[o][0] for o in others])  # (C-1, T, M, 2)
+        w = np.stack([mids[o][1] for o in others])
+        shape = x.shape[1:3]
+        X = triangulate_points(P, x.reshape(len(others), -1, 2), w.reshape(len(others), -1)).reshape(*shape, 3)
+        predicted, _ = project_points(X, lab[c].world_T_camera, lab[c].K)
+
+        def distance(keypoints: np.ndarray) -> float | None:
+            seen, _ = _midpoints(keypoints, names, lab[c].K, lab[c].distortion)
+            d = np.linalg.norm(seen - predicted, axis=-1)
+            return round(float(np.nanmedian(d)), 2) if np.isfinite(d).any() else None
+
+        chosen = distance(choice.keypoints[c])
+        rest = [distance(kp) for p, kp in enumerate(tracks.tracks[c].keypoints) if p not in choice.person.tracks.get(c, ())]
+        rest = [d for d in rest if d is not None]
+        out["cameras"][c] = {"chosen_px": chosen, "nearest_other_px": min(rest) if rest else None}
+    out["same_person"] = all(v["chosen_px"] is not None and (v["nearest_other_px"] is None or v["chosen_px"] < v["nearest_other_px"]) for v in out["cameras"].values())
+    return out
+
+
+def camera_errors(result: Result, lab: dict[str, CameraCalibration]) -> dict:
+    """The result's cameras against the lab's (module docstring): similarity and rigid alignment
+    of the camera centres, errors per camera (median over its frames) and their medians; None
+    where fewer than three cameras were estimated."""
+    names = [n for n in result.cameras if n in lab]
+    if len(names) < MIN_ALIGNMENT_CAMERAS:
+        return {"cameras_estimated": len(names)} | dict.fromkeys(ERROR_KEYS)
+    est = [result.cameras[n].world_T_camera for n in names]
+    ref = [np.repeat(lab[n].world_T_camera[None], len(e), axis=0) for n, e in zip(names, est)]
+    similarity = align_camera_centres([e[:, :3, 3] for e in est], [r[:, :3, 3] for r in ref])
+    rigid = align_camera_centres([e[:, :3, 3] for e in est], [r[:, :3, 3] for r in ref], with_scale=False)
+    position = {n: 100 * float(np.median(mcpe_m(similarity.apply_pose(e), r).per_item)) for n, e, r in zip(names, est, ref)}
+    rotation = {n: float(np.degrees(np.median(mcoe_rad(similarity.apply_pose(e), r).per_item))) for n, e, r in zip(names, est, ref)}
+    rigid_position = {n: 100 * float(np.median(mcpe_m(rigid.apply_pose(e), r).per_item)) for n, e, r in zip(names, est, ref)}
+    tilt = float(np.degrees(np.arccos(np.clip(similarity.R[2, 2], -1.0, 1.0)))) if result.world_frame == "ground_plane" else None
+    return {
+        "cameras_estimated": len(names),
+        "camera_cm": round(float(np.median(list(position.values()))), 2),
+        "camera_deg": round(float(np.median(list(rotation.values()))), 2),
+        "rigid_cm": round(float(np.median(list(rigid_position.values()))), 2),
+        "scale_error_pct": round(100 * (1 / similarity.scale - 1), 2),
+        "ground_tilt_deg": None if tilt is None else round(tilt, 2),
+        "camera_cm_per_camera": {n: round(v, 2) for n, v in position.items()},
+        "camera_deg_per_camera": {n: round(v, 2) for n, v in rotation.items()},
+        "rigid_cm_per_camera": {n: round(v, 2) for n, v in rigid_position.items()},
+    }
+
+
+def reprojection_px(result: Result, capture: Capture) -> dict:
+    """Median distance (pixels) between each detection (confidence ≥ :data:`MIN_CONFIDENCE`,
+    relabelled as the result's ``swaps`` say) and the result's 3D keypoint projected through its
+    camera, with the capture's intrinsics (focal lengths as the result estimated them) and
+    distortion: ``{"all": px, "camera": {name: px}}``."""
+    names = get_format(result.keypoint_format).names
+    perms = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+    focal = result.parameters.get("focal_px") or {}
+    every, per_camera = [], {}
+    for name, track in result.cameras.items():
+        cam = capture.camera(name)
+        detections = next((d for d in cam.detectors.values() if d.format == result.keypoint_format), None)
+        if detections is None:
+            raise MocapgraphError(f"camera {name}: no detector of the result's keypoint format {result.keypoint_format}")
+        tolerance = 0.5 / cam.frame_rate
+        state, frame = match_times(result.timestamps, track.timestamps, tolerance), match_times(cam.timestamps, track.timestamps, tolerance)
+        ok = (state >= 0) & (frame >= 0)
+        K = cam.K.copy()
+        if name in focal:
+            K[:2, :2] *= focal[name] / cam.K[0, 0]
+        predicted, _ = project_points(result.keypoints[state[ok]], track.world_T_camera[ok], K, cam.distortion)
+        codes = np.zeros(len(track.timestamps), dtype=int) if track.swaps is None else track.swaps.astype(int)
+        observed = np.take_along_axis(detections.keypoints[frame[ok]], perms[codes[ok]][..., None], axis=1)
+        error = np.linalg.norm(predicted - observed[..., :2], axis=-1)
+        error = error[np.isfinite(error) & (np.nan_to_num(observed[..., 2]) >= MIN_CONFIDENCE)]
+        per_camera[name] = round(float(np.median(error)), 2) if error.size else None
+        every.append(error)
+    every = np.concatenate(every) if every else np.zeros(0)
+    return {"all": round(float(np.median(every)), 2) if every.size else None, "camera": per_camera}
+
+
+def reported_reprojection(result: Result) -> dict | None:
+    """The reprojection medians the pipeline reported (``{"all", "camera"}``), or None."""
+    p = result.parameters
+    if "reprojection_px" in p:  # SmartMocap's
+        return {"all": p["reprojection_px"]["all"], "camera": dict(p["reprojection_px"]["camera"])}
+    if "median_reprojection_error_px" in p:  # the uncalibrated baseline's
+        return {"all": p["median_reprojection_error_px"], "camera": dict(p["reprojection_median_px"])}
+    return None
+
+
+def run_pipeline(pipeline: str, capture: Capture) -> tuple[Result, float]:
+    """One pipeline on the capture, with its defaults (SmartMocap without covariances: they do not
+    change the estimate), and its wall time in seconds."""
+    start = time.perf_counter()
+    if pipeline == "smartmocap":
+        result = run_smartmocap(capture, SmartmocapOptions(covariances=False))
+    elif pipeline == "baseline":
+        result = run_uncalibrated_baseline(capture, UncalibratedOptions())
+    else:
+        raise MocapgraphError(f"pipeline must be one of {', '.join(PIPELINES)}, got {pipeline!r}")
+    return result, time.perf_counter() - start
+
+
+def measure(result: Result, seconds: float, capture: Capture, lab: dict[str, CameraCalibration]) -> dict:
+    """Every number of one run (module docstring)."""
+    row = camera_errors(result, lab)
+    reported = reported_reprojection(result)
+    computed = reprojection_px(result, capture)
+    reprojection = reported if reported is not None else computed
+    estimated = result.parameters.get("focal_px") or {}
+    focal = {c.name: round(float(estimated.get(c.name, c.K[0, 0])), 1) for c in capture.cameras}
+    row.update(
+        reprojection_px=reprojection["all"], reprojection_px_per_camera=reprojection["camera"],
+        reprojection_from="pipeline" if reported is not None else "bench",
+        # the result's own 3D keypoints: differs from the pipeline's report where the solve used
+        # more than they hold (SmartMocap's keypoint-definition offsets)
+        reprojection_px_of_result=computed["all"],
+        swaps_per_camera={n: int(np.count_nonzero(t.swaps > 0)) if t.swaps is not None else 0 for n, t in result.cameras.items()},
+        focal_px=focal, focal_estimated=sorted(estimated),
+        focal_error_pct={n: round(100 * (f / lab[n].K[0, 0] - 1), 1) for n, f in focal.items()},
+        seconds=round(seconds, 1), notes=list(result.parameters.get("notes", [])),
+    )  # fmt: skip
+    return row
+
+
+def goals(runs: dict, association: dict) -> dict:
+    """Per metric: what SmartMocap should reach, the numbers compared and whether it does."""
+    sm, bl = runs["smartmocap"]["calibrated"], runs["baseline"]["calibrated"]
+    out = {}
+    for key in COMPARED:
+        a, b = sm[key], bl[key]
+        if key == "scale_error_pct":
+            a, b = (None if v is None else abs(v) for v in (a, b))
+        out[key] = {"goal": "smartmocap <= baseline (calibrated intrinsics)", "smartmocap": a, "baseline": b,
+                    "met": None if a is None or b is None else bool(a <= b)}  # fmt: skip
+    guessed, calibrated = runs["smartmocap"]["guessed"]["camera_cm"], sm["camera_cm"]
+    limit = None if calibrated is None else round(GUESSED_FACTOR * calibrated, 2)
+    out["guessed_camera_cm"] = {
+        "goal": f"smartmocap with guessed intrinsics <= {GUESSED_FACTOR:g} x with calibrated", "smartmocap": guessed,
+        "limit": limit, "met": None if guessed is None or limit is None else bool(guessed <= limit),
+    }  # fmt: skip
+    out["same_person"] = {"goal": "the fitted person the same in every camera (guessed intrinsics)", "met": bool(association["guessed"]["same_person"])}
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The benchmark
+
+
+def bench_real(clip: str | Path | None = None) -> dict:
+    """Both pipelines × both intrinsics on the default person and on every other person all the
+    clip's cameras see (module docstring); one run each."""
+    directory = clip_directory(clip)
+    tracks = load_clip(directory)
+    lab = {c.name: c for c in lab_calibration(directory)}
+    missing = [c for c in tracks.cameras if c not in lab]
+    if missing:
+        raise MocapgraphError(f"{directory / CALIBRATION_FILE}: no camera {', '.join(missing)} (the tracks' cameras are {', '.join(tracks.cameras)})")
+    out: dict = {
+        "clip": str(directory), "cameras": tracks.cameras, "frames": max(t.num_frames for t in tracks.tracks.values()),
+        "lab_focal_px": {c: round(float(lab[c].K[0, 0]), 1) for c in tracks.cameras}, "people": [],
+    }  # fmt: skip
+    with tempfile.TemporaryDirectory(prefix="mocapgraph-bench-real-") as tmp:
+        people: list[str | int] = ["largest"]
+        k = 0
+        while k < len(people):
+            person = people[k]
+            row: dict = {"person": person, "rank": {}, "association": {}, "runs": {p: {} for p in PIPELINES}}
+            for intrinsics in INTRINSICS:
+                path, choice = clip_capture(directory, Path(tmp) / f"{person}-{intrinsics}", person, intrinsics)
+                if person == "largest" and intrinsics == "calibrated":
+                    people += [r for r, p in enumerate(choice.people) if r != choice.chosen and len(p.tracks) == len(tracks.cameras)]
+                    row["people_seen"] = len(choice.people)
+                row["rank"][intrinsics] = choice.chosen
+                row["association"][intrinsics] = same_person_check(tracks, lab, choice)
+                capture = load_capture(path)
+                for pipeline in PIPELINES:
+                    log.info("bench real: %s on person %s, %s intrinsics", pipeline, person, intrinsics)
+                    result, seconds = run_pipeline(pipeline, capture)
+                    row["runs"][pipeline][intrinsics] = measure(result, seconds, capture, lab)
+            row["goals"] = goals(row["runs"], row["association"])
+            out["people"].append(row)
+            k += 1
+    out["goals_met"] = {key: goal["met"] for key, goal in out["people"][0]["goals"].items()}
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# What the command prints
+
+
+_ROWS = (
+    ("camera_cm", "cameras, similarity (cm)"),
+    ("camera_deg", "cameras, similarity (deg)"),
+    ("rigid_cm", "cameras, rigid only (cm)"),
+    ("scale_error_pct", "size error (%)"),
+    ("ground_tilt_deg", "ground tilt (deg)"),
+    ("reprojection_px", "reprojection, reported (px)"),
+    ("reprojection_px_of_result", "reprojection, result (px)"),
+    ("swaps_per_camera", "frames relabelled"),
+    ("focal_px", "focal length (px)"),
+    ("seconds", "run time (s)"),
+)
+
+
+def _cell(value, digits: int = 1) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, dict):
+        return "/".join(_cell(v, 0) for v in value.values())
+    return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
+
+
+def _met(goal: dict) -> str:
+    return {True: "met", False: "not met", None: "not measured"}[goal["met"]]
+
+
+def _person_lines(person: dict, columns: list[tuple[str, str]], width: int) -> list[str]:
+    rank = person["rank"]["calibrated"]
+    label = f"the default choice (largest) of {person['people_seen']} people seen" if person["person"] == "largest" else f"rank {person['person']}"
+    lines = ["", f"person {rank}: {label}"]
+    checks = person["association"]
+    same = checks["guessed"]["tracks"] == checks["calibrated"]["tracks"]
+    for intrinsics in ("calibrated",) if same else INTRINSICS:
+        check = checks[intrinsics]
+        used = "with calibrated and with guessed intrinsics" if same else f"with {intrinsics} intrinsics"
+        tracks = ", ".join(f"{c} {'+'.join(map(str, t))}" for c, t in check["tracks"].items())
+        distances = ", ".join(f"{c} {_cell(v['chosen_px'], 0)}/{_cell(v['nearest_other_px'], 0)}" for c, v in check["cameras"].items())
+        lines.append(f"  tracks {tracks} {used}: the same person in every camera: {'yes' if check['same_person'] else 'NO'}")
+        lines.append(f"    (px from the lab's triangulation by the other cameras to this track / the nearest other: {distances})")
+    lines.append("  " + " " * 29 + "".join(f"{f'{p} {i}':>{width}}" for p, i in columns) + "   goal")
+    for key, title in _ROWS:
+        goal = person["goals"].get(key)
+        note = "" if goal is None else f"   smartmocap <= baseline (calibrated): {_met(goal)}"
+        lines.append(f"  {title:29s}" + "".join(f"{_cell(person['runs'][p][i][key]):>{width}}" for p, i in columns) + note)
+    g = person["goals"]["guessed_camera_cm"]
+    lines.append(f"  goal: {g['goal']}: {_cell(g['smartmocap'])} cm against {_cell(g['limit'])} cm: {_met(g)}")
+    return lines
+
+
+def format_report(report: dict) -> str:
+    """The benchmark as tables for a terminal: per person, metrics by pipeline and intrinsics."""
+    cams = report["cameras"]
+    columns = [(p, i) for p in PIPELINES for i in INTRINSICS]
+    cells = [_cell(person["runs"][p][i][key]) for person in report["people"] for p, i in columns for key, _ in _ROWS]
+    width = max(len(f"{p} {i}") for p, i in columns) + 2
+    width = max(width, *(len(c) + 2 for c in cells))
+    lines = [
+        f"real clip {report['clip']}: {len(cams)} cameras ({', '.join(cams)}), {report['frames']} frames; "
+        f"lab focal lengths {_cell(report['lab_focal_px'])} px; values per camera in that order"
+    ]
+    for person in report["people"]:
+        lines += _person_lines(person, columns, width)
+    return "\n".join(lines)

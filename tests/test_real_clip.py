@@ -1,0 +1,159 @@
+"""Self-calibration on the real clip (``tests/data/real``: four static cameras, two people) against
+the lab's Qualisys calibration, for SmartMocap and the generic uncalibrated baseline, with the
+measures of ``mocapgraph bench real`` (:mod:`mocapgraph.benchmarks.real`).
+
+The bounds sit above the numbers measured (given in each test) with room for the solvers'
+run-to-run changes, and below what a wrong answer gives (a camera placed on the wrong side of
+the room is metres off; a mixed-up person hundreds of pixels).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from real_clip import calibration, clip_capture, load_clip
+
+from mocapgraph.benchmarks import real
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
+from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_ransac
+from mocapgraph.data_tools.io.capture import load_capture
+from mocapgraph.errors import MocapgraphError
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return load_clip()
+
+
+@pytest.fixture(scope="module")
+def lab():
+    return {c.name: c for c in calibration()}
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory):
+    """The default person's capture and choice, with the lab's intrinsics and with guessed ones."""
+    out = {}
+    for intrinsics in real.INTRINSICS:
+        path, choice = clip_capture(tmp_path_factory.mktemp(intrinsics) / "capture", "largest", intrinsics)
+        out[intrinsics] = (load_capture(path), choice)
+    return out
+
+
+@pytest.fixture(scope="module")
+def measured(captures, lab):
+    """``measured(pipeline, intrinsics)``: the bench's numbers of one run, each run made once."""
+    done = {}
+
+    def run(pipeline: str, intrinsics: str) -> dict:
+        if (pipeline, intrinsics) not in done:
+            capture = captures[intrinsics][0]
+            result, seconds = real.run_pipeline(pipeline, capture)
+            done[pipeline, intrinsics] = real.measure(result, seconds, capture, lab) | {"result": result}
+        return done[pipeline, intrinsics]
+
+    return run
+
+
+def test_the_lab_world_stands_on_its_floor(clip, lab):
+    """The ground tilt is measured against the lab's Z: its floor is z = 0. The cameras hang
+    1.69-2.09 m up, looking down, and the heels of the person standing beside the treadmill
+    (rank 1) triangulate 1-3 cm above z = 0 (measured: median 1.7 cm)."""
+    heights = np.array([lab[c].world_T_camera[2, 3] for c in clip.cameras])
+    assert np.all((heights > 1.6) & (heights < 2.2)), heights
+    assert all(lab[c].world_T_camera[2, 2] < -0.2 for c in clip.cameras)  # optical axes point down
+    standing = {"cam01": 0, "cam02": 0, "cam03": 1, "cam04": 0}  # rank 1's tracks (test_the_fitted_person_...)
+    names = get_format(clip.keypoint_format).names
+    heels = [names.index("left_heel"), names.index("right_heel")]
+    P = np.stack([projection_matrix(lab[c].K, lab[c].world_T_camera) for c in clip.cameras])
+    x, w = [], []
+    for c in clip.cameras:
+        kp = clip.tracks[c].keypoints[standing[c]][:, heels]
+        x.append(undistort_pixels(kp[..., :2], lab[c].K, lab[c].distortion))
+        w.append(np.where(kp[..., 2] >= 0.5, kp[..., 2], 0.0))
+    x, w = np.stack(x), np.nan_to_num(np.stack(w))
+    z = np.concatenate([triangulate_ransac(P, x[:, t], w[:, t], threshold_px=20.0)[0][:, 2] for t in range(x.shape[1])])
+    assert np.isfinite(z).sum() > 100
+    assert 0.0 < np.nanmedian(z) < 0.04 and np.nanpercentile(z, 10) > -0.03
+
+
+def test_the_fitted_person_is_the_same_in_every_camera(clip, lab, captures):
+    """With guessed intrinsics (37 % off) the default rule fits the same tracks as with the lab's,
+    and the lab's calibration says they are one person: the other cameras' triangulation of
+    their left/right midpoints lands 18-41 px from the chosen track in each camera, 242-472 px
+    from the other person's (measured). Putting the other person's track into one camera is caught."""
+    guessed, calibrated = captures["guessed"][1], captures["calibrated"][1]
+    assert guessed.person.tracks == calibrated.person.tracks
+    check = real.same_person_check(clip, lab, guessed)
+    assert check["same_person"], check
+    for cam, v in check["cameras"].items():
+        assert v["chosen_px"] < 60.0 and v["nearest_other_px"] > 150.0, (cam, v)
+
+    cam = "cam03"
+    (own,) = guessed.person.tracks[cam]
+    other = 1 - own
+    mixed = replace(
+        guessed,
+        people=[replace(p, tracks={**p.tracks, cam: (other,)}) if k == guessed.chosen else p for k, p in enumerate(guessed.people)],
+        keypoints={**guessed.keypoints, cam: clip.tracks[cam].keypoints[other]},
+    )
+    wrong = real.same_person_check(clip, lab, mixed)
+    assert not wrong["same_person"]
+    assert wrong["cameras"][cam]["chosen_px"] > wrong["cameras"][cam]["nearest_other_px"]
+
+
+def test_baseline_on_the_real_clip(measured, captures):
+    """The generic baseline with the lab's intrinsics: cameras 4.9 cm and 2.2 deg off after a
+    similarity (measured); its size from an assumed 1.75 m height 18 % too large for this person,
+    so 58 cm off without the scale. The reprojection medians computed from its result by the
+    bench agree with the ones it reports (3.9/4.7/13.6/3.7 px)."""
+    row = measured("baseline", "calibrated")
+    assert row["cameras_estimated"] == 4
+    assert row["camera_cm"] < 8.0 and row["camera_deg"] < 3.5, row
+    assert 8.0 < row["scale_error_pct"] < 30.0 and row["rigid_cm"] > 30.0, row
+    assert row["ground_tilt_deg"] < 10.0
+    computed = real.reprojection_px(row["result"], captures["calibrated"][0])
+    assert computed["all"] == pytest.approx(row["reprojection_px"], abs=0.1)
+    for cam, px in row["reprojection_px_per_camera"].items():
+        assert computed["camera"][cam] == pytest.approx(px, abs=0.1), cam
+
+
+def test_smartmocap_on_the_real_clip(measured):
+    """SmartMocap (defaults) with the lab's intrinsics: cameras 7.4 cm and 2.2 deg off after a
+    similarity, 23 cm with rigid alignment alone, its size 7 % small, the ground 4.4 deg tilted
+    (measured). Metric without being told the person's height: nearer the lab's scale, and with
+    the rigid alignment, than the baseline with its assumed height."""
+    sm, bl = measured("smartmocap", "calibrated"), measured("baseline", "calibrated")
+    assert sm["cameras_estimated"] == 4
+    assert sm["camera_cm"] < 12.0 and sm["camera_deg"] < 4.0, sm
+    assert abs(sm["scale_error_pct"]) < 12.0 and sm["ground_tilt_deg"] < 8.0, sm
+    assert abs(sm["scale_error_pct"]) < abs(bl["scale_error_pct"]) and sm["rigid_cm"] < bl["rigid_cm"]
+    assert sm["camera_cm"] < 2.0 * bl["camera_cm"]  # measured 1.5x the baseline's
+    assert sm["reprojection_from"] == "pipeline" and sm["reprojection_px"] < 25.0
+
+
+@pytest.mark.slow
+def test_guessed_intrinsics_on_the_real_clip(measured, lab):
+    """With guessed intrinsics (f = 2304 px for all four; the lab's 1674-1682 px), SmartMocap
+    frees the focal lengths: each estimate nearer the lab's than the guess (measured 1531, 1396,
+    1833, 1980 px: -9, -17, +9, +18 %), the cameras 26 cm off after a similarity (3.5x its
+    calibrated run's 7.4 cm: the 2x goal is not met) and within the baseline's 32 cm, which
+    keeps the guess."""
+    sm, bl = measured("smartmocap", "guessed"), measured("baseline", "guessed")
+    assert sorted(sm["focal_estimated"]) == sorted(lab)
+    for cam, f in sm["focal_px"].items():
+        assert abs(f - lab[cam].K[0, 0]) < abs(2304.0 - lab[cam].K[0, 0]), (cam, f)
+    assert np.median(np.abs(list(sm["focal_error_pct"].values()))) < 20.0
+    assert sm["camera_cm"] < 35.0 and sm["camera_cm"] < bl["camera_cm"], (sm["camera_cm"], bl["camera_cm"])
+
+
+def test_the_clip_folder_must_hold_the_clip(tmp_path):
+    with pytest.raises(MocapgraphError, match="tracks.npz and Calib.qca.txt missing"):
+        real.bench_real(tmp_path)
+    (tmp_path / real.TRACKS_FILE).write_bytes(b"not a zip")
+    (tmp_path / real.CALIBRATION_FILE).write_text("<calibration/>")
+    with pytest.raises(MocapgraphError, match="tracks.npz: not a readable .npz file"):
+        real.bench_real(tmp_path)
