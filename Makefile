@@ -44,13 +44,14 @@ test-all: install
 
 # Speed and accuracy targets live here, not in timed tests; aircap takes about 15 minutes, priors
 # (which reads the held-out CMU takes of ../shared/motion/cmu_train) a few, smartmocap about ten, airpose
-# two.
+# two, real (the clip in tests/data/real, both pipelines on both people) about three.
 bench: install
 	$(VENV)/bin/mocapgraph bench body --json
 	$(VENV)/bin/mocapgraph bench aircap --duration 60
 	$(VENV)/bin/mocapgraph bench priors --json
 	$(VENV)/bin/mocapgraph bench smartmocap --json
 	$(VENV)/bin/mocapgraph bench airpose --json
+	$(VENV)/bin/mocapgraph bench real --json
 
 clean:
 	rm -rf build $(VENV) $(VIDEO_VENV) .pytest_cache
