@@ -17,9 +17,11 @@ from real_clip import calibration, clip_capture, load_clip
 
 from mocapgraph.benchmarks import real
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.cli.main import main
 from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
 from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_ransac
 from mocapgraph.data_tools.io.capture import load_capture
+from mocapgraph.data_tools.tracking.track_files import load_track_set, save_track_set
 from mocapgraph.errors import MocapgraphError
 
 
@@ -150,10 +152,31 @@ def test_guessed_intrinsics_on_the_real_clip(measured, lab):
     assert sm["camera_cm"] < 35.0 and sm["camera_cm"] < bl["camera_cm"], (sm["camera_cm"], bl["camera_cm"])
 
 
-def test_the_clip_folder_must_hold_the_clip(tmp_path):
-    with pytest.raises(MocapgraphError, match="tracks.npz and Calib.qca.txt missing"):
-        real.bench_real(tmp_path)
+def test_the_clip_folder_must_hold_the_clip(tmp_path, monkeypatch, capsys):
+    assert main(["bench", "real", "--clip", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"mocapgraph: error: {tmp_path}: tracks.npz and Calib.qca.txt missing (a real clip is a folder with tracks.npz and Calib.qca.txt)\n"
+    monkeypatch.setattr(real, "DEFAULT_CLIP", tmp_path / "tests" / "data" / "real")  # as in an installed wheel
+    with pytest.raises(MocapgraphError, match="ships with the source repository .* pass --clip DIR"):
+        real.bench_real()
     (tmp_path / real.TRACKS_FILE).write_bytes(b"not a zip")
     (tmp_path / real.CALIBRATION_FILE).write_text("<calibration/>")
     with pytest.raises(MocapgraphError, match="tracks.npz: not a readable .npz file"):
         real.bench_real(tmp_path)
+
+
+def test_track_files_round_trip_and_errors(clip, tmp_path):
+    path = save_track_set(clip, tmp_path / "tracks.npz")
+    back = load_track_set(path)
+    assert back.cameras == clip.cameras and back.sizes == clip.sizes and back.fps == clip.fps and back.keypoint_format == "blazepose33"
+    for cam in clip.cameras:
+        np.testing.assert_array_equal(back.tracks[cam].keypoints, clip.tracks[cam].keypoints)  # stored values are already compact
+    arrays = dict(np.load(path))
+    del arrays["tracks_cam02"]
+    np.savez(tmp_path / "missing.npz", **arrays)
+    with pytest.raises(MocapgraphError, match="missing.npz: tracks_cam02: missing"):
+        load_track_set(tmp_path / "missing.npz")
+    arrays = dict(np.load(path), tracks_cam02=clip.tracks["cam02"].keypoints[..., :17, :])
+    np.savez(tmp_path / "coco.npz", **arrays)
+    with pytest.raises(MocapgraphError, match=r"coco.npz: tracks_cam02: expected shape \(N, N, 33, 3\)"):
+        load_track_set(tmp_path / "coco.npz")
