@@ -52,6 +52,7 @@ bench: install
 	$(VENV)/bin/mocapgraph bench smartmocap --json
 	$(VENV)/bin/mocapgraph bench airpose --json
 	$(VENV)/bin/mocapgraph bench real --json
+	$(VENV)/bin/mocapgraph bench faults --json
 
 clean:
 	rm -rf build $(VENV) $(VIDEO_VENV) .pytest_cache

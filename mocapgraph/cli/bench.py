@@ -19,6 +19,10 @@ BENCHES = {
         "SmartMocap on a rich capture: camera configurations, with and without the motion prior",
         "mocapgraph.benchmarks.smartmocap:bench_smartmocap", {"workers": ("parallel chunks", {})},
     ),
+    "faults": (
+        "SmartMocap with realistic detector faults against none, and with swap handling off (rich, phones)",
+        "mocapgraph.benchmarks.faults:bench_faults", {"workers": ("parallel chunks", {})},
+    ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (
         "the shipped learned priors on held-out CMU subjects and on aircap",
