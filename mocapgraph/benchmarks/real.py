@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 import mocapgraph
+from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.data_tools.evaluation.alignment import MIN_ALIGNMENT_CAMERAS, align_camera_centres
@@ -197,8 +198,12 @@ def reprojection_px(result: Result, capture: Capture) -> dict:
     """Median distance (pixels) between each detection (confidence ≥ :data:`MIN_CONFIDENCE`,
     relabelled as the result's ``swaps`` say) and the result's 3D keypoint projected through its
     camera, with the capture's intrinsics (focal lengths as the result estimated them) and
-    distortion: ``{"all": px, "camera": {name: px}}``."""
+    distortion: ``{"all": px, "camera": {name: px}}``. Of a result with a body, only the points
+    its body model has a counterpart for (the others are stand-ins that no solve fitted)."""
     names = get_format(result.keypoint_format).names
+    has = np.ones(len(names), dtype=bool)
+    if result.has_body_parameters:
+        has = load_body_model(result.body_model).table(result.shape, keypoints=result.keypoint_format).mapped
     perms = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
     focal = result.parameters.get("focal_px") or {}
     every, per_camera = [], {}
@@ -217,7 +222,7 @@ def reprojection_px(result: Result, capture: Capture) -> dict:
         codes = np.zeros(len(track.timestamps), dtype=int) if track.swaps is None else track.swaps.astype(int)
         observed = np.take_along_axis(detections.keypoints[frame[ok]], perms[codes[ok]][..., None], axis=1)
         error = np.linalg.norm(predicted - observed[..., :2], axis=-1)
-        error = error[np.isfinite(error) & (np.nan_to_num(observed[..., 2]) >= MIN_CONFIDENCE)]
+        error = error[np.isfinite(error) & (np.nan_to_num(observed[..., 2]) >= MIN_CONFIDENCE) & has]
         per_camera[name] = round(float(np.median(error)), 2) if error.size else None
         every.append(error)
     every = np.concatenate(every) if every else np.zeros(0)
