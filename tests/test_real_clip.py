@@ -140,7 +140,7 @@ def test_smartmocap_on_the_real_clip(measured):
     assert sm["reprojection_from"] == "pipeline" and sm["reprojection_px"] < 12.0 and sm["reprojection_px_of_result"] < 16.0
 
 
-@pytest.mark.slow  # 40-45 s, and the calibrated run's for the comparison
+@pytest.mark.slow  # 40-45 s
 def test_guessed_intrinsics_on_the_real_clip(measured, lab):
     """With guessed intrinsics (f = 2304 px for all four; the lab's 1674-1682 px), SmartMocap
     frees the focal lengths: each estimate nearer the lab's than the guess (measured 1527, 1431,
