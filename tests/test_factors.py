@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from mocapgraph.body import load_body_model
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
 from mocapgraph.factors.camera_priors import camera_prior_factor
 from mocapgraph.factors.keys import camera_key, pose_key, root_key, shape_key
-from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.reprojection_kernel import reproject_numpy
 from mocapgraph.factors.robust import RobustScale

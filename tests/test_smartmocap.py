@@ -18,7 +18,9 @@ from mocapgraph.pipelines.smartmocap import SmartmocapOptions, chunk_bounds, run
 
 @pytest.fixture(scope="module")
 def capture():
-    return synthesize("rich", seed=0, duration_s=2.0)
+    # Without the detectors' systematic faults: this module checks the pipeline itself; the
+    # faults and their handling are measured in test_swaps, test_focal and test_keypoint_fit.
+    return synthesize("rich", seed=0, duration_s=2.0, detector_faults="none")
 
 
 def run(capture, **kw):

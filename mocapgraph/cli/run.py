@@ -25,8 +25,12 @@ def cmd_run(args) -> None:
 
 
 def _graph_flags(flags: OptionFlags, pose_priors: tuple[str, ...]) -> None:
+    from mocapgraph.graphs.body_graph import FOCAL_MODES
+
     flags.add("graph.pose_prior", "learned pose prior on every state (docs/priors.md)", choices=pose_priors)
     flags.add("graph.gm_sigma_px", "Geman-McClure scale in pixels")
+    flags.add("graph.swaps", "keep the detectors' left/right labels as detected (no swap check, no relabelling in the solve)")
+    flags.add("graph.focal", "which cameras' focal lengths are variables: those whose intrinsics were guessed, all, or none", choices=FOCAL_MODES)
 
 
 def _uncalibrated_flags(flags: OptionFlags) -> None:
@@ -63,7 +67,7 @@ def add_parsers(subparsers) -> None:
     flags.add("seed", "seed of RANSAC's sampling")
     flags.add("uncalibrated", "estimate the static cameras' poses from the keypoints (the capture's intrinsics are used, its extrinsics not)")
     flags.add("self_calibration.height_m", "--uncalibrated: the person's standing height assumed for the metric scale, metres")
-    flags.add("self_calibration.swap_check", "--uncalibrated: keep the detectors' left/right labels as they are")
+    flags.add("swap_check", "keep the detectors' left/right labels as they are (no swap check; calibrated: of the static cameras)")
     flags.add("self_calibration.gm_sigma_px", "--uncalibrated: Geman-McClure scale of the bundle adjustment in pixels")
     flags.add("self_calibration.min_confidence", "--uncalibrated: keypoints below this confidence are not used")
 
@@ -105,6 +109,7 @@ def add_parsers(subparsers) -> None:
     flags.add("address", "Ray cluster address", unset="start a local Ray instance")
     flags.add("workers", "parallel chunks")
     flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
+    flags.add("keypoint_offsets", "no last pass with the detector's keypoint-definition offsets (nor its outlier views left out)")
     flags.add("covariances", "skip the marginal covariances")
 
     for parser in (baseline, aircap, airpose, smartmocap):

@@ -173,12 +173,14 @@ class Labelling:
             clearly fits better.
         enabled: False keeps every camera as detected (a solver switches the hypotheses on
             once the body is roughly in place).
+        allowed: ``(C, H)`` bool, which hypotheses each camera may take (None: all).
         choice: ``(C,)`` per camera, the hypothesis the last evaluation took.
     """
 
     permutations: np.ndarray
     cost: float
     enabled: bool = True
+    allowed: np.ndarray | None = None
     choice: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
 
     def check(self, K: int, C: int) -> None:
@@ -193,6 +195,8 @@ class Labelling:
             raise MocapgraphError(f"labelling.permutations: (H, {K}) permutations of the points, the first the identity; got shape {p.shape}")
         if not (np.isfinite(self.cost) and self.cost >= 0):
             raise MocapgraphError(f"labelling.cost must be a finite number >= 0, got {self.cost}")
+        if self.allowed is not None and (np.shape(self.allowed) != (C, len(p)) or not np.all(np.asarray(self.allowed)[:, 0])):
+            raise MocapgraphError(f"labelling.allowed: ({C}, {len(p)}) bools with the identity allowed for every camera")
         self.choice = np.zeros(C, dtype=np.intp)
 
 
@@ -243,6 +247,8 @@ class _ReprojectionError:
             ok = in_front & np.isfinite(e2) & (w > 0)
             costs[h] = 0.5 * np.sum(np.where(ok, w * w * np.where(ok, rho, 0.0), 0.0), axis=1)
         costs[1:] += self.labelling.cost
+        if self.labelling.allowed is not None:
+            costs[~np.asarray(self.labelling.allowed).T] = np.inf
         return np.argmin(costs, axis=0)
 
     def _focal_jacobian(self, entry, args, observed, weights) -> np.ndarray:

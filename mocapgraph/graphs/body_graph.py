@@ -79,9 +79,9 @@ class GraphOptions:
     camera_clearance_m: float = 0.3
     # Left/right swaps of the detector (mocapgraph.body.labelling): each camera-frame's labelling
     # is the hypothesis with the lower robust cost, re-decided at every linearisation; a
-    # relabelling costs as much as one point `swap_cost_px` noise sigmas off.
+    # relabelling costs as much as one point `swap_cost_sigmas` times noise_px off.
     swaps: bool = True
-    swap_cost_px: float = 8.0
+    swap_cost_sigmas: float = 8.0
     # Focal lengths as variables: "guessed" (the cameras whose intrinsics are a guess), "all" or
     # "fixed"; each held near its given value by a log-normal prior of this width.
     focal: str = "guessed"
@@ -98,7 +98,7 @@ class GraphOptions:
                 raise MocapgraphError(f"{name} {value!r}: choose one of {', '.join(choices)}")
         for name in ("noise_px", "gm_sigma_px", "pose_prior_sigma_rad", "shape_prior_sigma", "root_sigma_rad_s", "root_sigma_m_s",
                      "pose_sigma_rad_s", "pose_sigma_rad_s2", "camera_sigma_rad_s", "camera_sigma_m_s", "ground_sigma_m",
-                     "swap_cost_px", "focal_sigma_log"):  # fmt: skip
+                     "swap_cost_sigmas", "focal_sigma_log"):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
@@ -251,7 +251,13 @@ class BodyGraph:
             between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": fraction} if fraction else {}
             labelling = None
             if self.options.swaps:
-                labelling = Labelling(self.permutations(fmt), 0.5 * self.options.swap_cost_px**2)
+                # A moving camera's pose at a frame can go round to the person's other side:
+                # relabelling its whole body there would trade against that, so it may only
+                # relabel limbs in the solve (its whole-body swaps are undone when it is placed).
+                whole = SWAP_KINDS.index("body")
+                allowed = np.ones((len(obs), len(SWAP_KINDS)), dtype=bool)
+                allowed[[self.model.cameras[o.camera].moving for o in obs], whole] = False
+                labelling = Labelling(self.permutations(fmt), 0.5 * self.options.swap_cost_sigmas**2, allowed=allowed)
                 self.labellings[i].append((labelling, obs))
             graph.add(
                 reprojection_factor(

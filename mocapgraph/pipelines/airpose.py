@@ -119,7 +119,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     if options.covariances and graph is not None:
         result.covariances.update(bg.covariances(graph, values, estimate))
     result = _with_left_out(result, full.times, keep)
-    result.parameters.update(focal_px=bg.focal_lengths(estimate), initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes)
+    result.parameters.update(focal_px=bg.focal_lengths(estimate) if options.refine else {}, initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes)
     return result
 
 

@@ -91,8 +91,9 @@ def run_baseline(capture: Capture, options: BaselineOptions | None = None, captu
     (:func:`~mocapgraph.pipelines.uncalibrated_baseline.run_uncalibrated_baseline`); nothing written."""
     options = options or BaselineOptions()
     if options.uncalibrated:
+        calibration = replace(options.self_calibration, swap_check=options.swap_check and options.self_calibration.swap_check)
         return run_uncalibrated_baseline(
-            capture, options.self_calibration, capture_label, detector=options.detector, threshold_px=options.threshold_px, seed=options.seed
+            capture, calibration, capture_label, detector=options.detector, threshold_px=options.threshold_px, seed=options.seed
         )
     calibrated = [cam for cam in capture.cameras if cam.extrinsics is not None]
     skipped = [cam.name for cam in capture.cameras if cam.extrinsics is None]
@@ -109,12 +110,12 @@ def run_baseline(capture: Capture, options: BaselineOptions | None = None, captu
     T = len(tri.timestamps)
     known = np.isfinite(tri.points).all(axis=2)
     tracks, notes = {}, []
+    for c, cam in enumerate(calibrated):  # the cameras as given, with the labels their detections took
+        has = tri.frames[c] >= 0
+        ext = np.asarray(cam.extrinsics, dtype=float)
+        poses = np.repeat(ext[:1], has.sum(), axis=0) if len(ext) == 1 else ext[tri.frames[c][has]]
+        tracks[cam.name] = CameraTrack(tri.timestamps[has], poses, None if tri.swaps is None else tri.swaps[c][has])
     if tri.swaps is not None:
-        for c, cam in enumerate(calibrated):
-            has = tri.frames[c] >= 0
-            ext = np.asarray(cam.extrinsics, dtype=float)
-            poses = np.repeat(ext[:1], has.sum(), axis=0) if len(ext) == 1 else ext[tri.frames[c][has]]
-            tracks[cam.name] = CameraTrack(tri.timestamps[has], poses, tri.swaps[c][has])
         notes = swap_notes(list(tri.cameras), {c: np.where(tri.frames[c] >= 0, tri.swaps[c], -1) for c in range(len(calibrated))})
     return Result(
         pipeline="baseline",

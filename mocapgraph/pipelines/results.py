@@ -34,16 +34,18 @@ def estimate_result(
             states keep the estimate's initial value, e.g. a GPS/IMU prior); else only at its
             frames that belong to a body state.
 
-    Joints and keypoints (of the first observed format) come from the body model's forward
-    kinematics; ``flags`` hold each state's detection count and whether it had none.
+    Joints and keypoints (of the first observed format; NaN for its points the body has no
+    counterpart for) come from the body model's forward kinematics; ``flags`` hold each state's detection count and whether it had none.
     """
     fmt = model.formats[0]
     fk = body.forward(estimate.shape, estimate.roots, estimate.poses)
+    keypoints = body.forward(estimate.shape, estimate.roots, estimate.poses, keypoints=fmt).keypoints
+    keypoints[:, ~body.table(estimate.shape, keypoints=fmt).mapped] = np.nan  # points the body has no counterpart for
     detections = model.detections_per_state()
     result = Result(
         pipeline=pipeline, capture=capture_label or str(capture.path or capture.name), world_frame=world_frame,
         timestamps=model.times, joints=fk.joints, body_model=body.name, root=estimate.roots, pose=estimate.poses,
-        shape=estimate.shape, keypoints=body.forward(estimate.shape, estimate.roots, estimate.poses, keypoints=fmt).keypoints,
+        shape=estimate.shape, keypoints=keypoints,
         keypoint_format=fmt, flags={"num_detections": detections, "unconstrained": detections == 0},
         log=list(estimate.log), parameters=parameters,
     )  # fmt: skip

@@ -256,18 +256,14 @@ def _reference_camera(capture: Capture, seen: list[bool]) -> int:
     return seen.index(True)
 
 
-def initial_estimate(
-    model: StateModel, body: BodyModel, options: SmartmocapOptions, reference: int, notes: list[str]
-) -> tuple[Estimate, list[bool], str, dict[int, np.ndarray]]:
+def initial_estimate(model: StateModel, body: BodyModel, options: SmartmocapOptions, reference: int, notes: list[str]) -> tuple[Estimate, list[bool], str]:
     """Body and cameras in SmartMocap's world from the views; which cameras could be placed;
-    which initialiser gave the views; per moving camera placed against the static ones, the
-    labelling (codes of :data:`~mocapgraph.body.labelling.SWAP_KINDS`) of each of its frames."""
+    which initialiser gave the views."""
     views, used = view_bodies(model, body, options.initialiser)
     notes.append(f"initialised from the {used}")
     moving = [cam.moving for cam in model.cameras]
     ref_T_c, known = relative_cameras(views, moving, reference)
-    ref_T_c, known, state_labels = moving_cameras_from_static(coco_views(model), model.camera_matrices(), ref_T_c, known, moving)
-    labels = {c: np.where(model.frame_state[c] >= 0, codes[model.frame_state[c]], -1).astype(np.int8) for c, codes in state_labels.items()}
+    ref_T_c, known = moving_cameras_from_static(coco_views(model), model.camera_matrices(), ref_T_c, known, moving)
     placed = [bool(known[c].any()) for c in range(model.num_cameras)]
     fused = fuse_bodies(views, ref_T_c, known)
     shape = fused_shape(body, fused)
@@ -279,7 +275,7 @@ def initial_estimate(
         )
     world_T_ref = np.linalg.inv(ground.ref_T_world)
     cameras = [model.frames_from_states(c, world_T_ref @ ref_T_c[c]) for c in range(model.num_cameras)]
-    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, cameras), placed, used, labels
+    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, cameras), placed, used
 
 
 def _degeneracy_notes(model: StateModel, placed: list[bool]) -> list[str]:
@@ -307,10 +303,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     # Swapped views are undone before they place the cameras, by the views' epipolar geometry.
     before = view_swaps(model) if options.graph.swaps else {}
     model = model.relabelled(before)
-    start, placed, used, moving_labels = initial_estimate(model, body, options, reference, notes)
-    if options.graph.swaps:
-        before.update(moving_labels)
-        model = model.relabelled(moving_labels)
+    start, placed, used = initial_estimate(model, body, options, reference, notes)
     for c, name in enumerate(model.names):
         if not placed[c]:
             notes.append(f"camera {name}: never saw the person together with the reference camera {model.names[reference]}; not estimated")
