@@ -36,6 +36,13 @@ def run(capture, **kw):
 
 
 @pytest.fixture(scope="module")
+def faultless():
+    """The capture without the detector's systematic faults: the lens comparisons below are
+    millimetres, which the faults' own effect would blur."""
+    return synthesize("aircap", seed=0, duration_s=5.0, detector_faults="none")
+
+
+@pytest.fixture(scope="module")
 def variants(capture):
     return {
         "sequence": run(capture, mode="sequence", cameras="refine", covariances=True),
@@ -88,11 +95,11 @@ def test_person_out_of_every_view_for_a_while(capture):
     assert metrics["ra_mpjpe_m"] < 0.15
 
 
-def test_per_frame_pass_in_two_processes_matches_one(capture):
+def test_per_frame_pass_in_two_processes_matches_one(faultless):
     """The spans solved in forked workers give the serial answer: exactly on the first span
     (same warm starts), and to within a few millimetres after the second span's cold start."""
-    serial, _ = run(capture, mode="per-frame", workers=1)
-    forked, _ = run(capture, mode="per-frame", workers=2)
+    serial, _ = run(faultless, mode="per-frame", workers=1)
+    forked, _ = run(faultless, mode="per-frame", workers=2)
     np.testing.assert_array_equal(serial.timestamps, forked.timestamps)
     half = len(serial.timestamps) // 2
     np.testing.assert_allclose(forked.joints[:half], serial.joints[:half], rtol=0, atol=1e-9)
@@ -198,13 +205,6 @@ def relensed(capture, distortion):
 
 STRONG_LENS = np.array([-0.3, 0.08, 1e-3, -1e-3, 0.0])
 """Barrel distortion moving keypoints by a median 7 px and up to 70 px at the image's edges."""
-
-
-@pytest.fixture(scope="module")
-def faultless():
-    """The capture without the detector's systematic faults: the lens comparisons below are
-    millimetres, which the faults' own effect would blur."""
-    return synthesize("aircap", seed=0, duration_s=5.0, detector_faults="none")
 
 
 def test_keypoints_are_undistorted_once_into_the_ideal_image(faultless):

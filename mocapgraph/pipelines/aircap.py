@@ -76,8 +76,9 @@ class AircapOptions:
     covariances: bool = True
     # The learned pose prior is off by default ("gmm" on every graph; "vae" on the sequence fit
     # only: its network runs once per linearisation for all states, per state it would cost 16 ms).
+    # The UAVs' GPS/IMU priors pin their poses, so their whole-body swaps can be undone in the solve.
     graph: GraphOptions = field(
-        default_factory=lambda: GraphOptions(pose_prior="none", shape_prior_sigma=0.25, shape="estimate", joint_sigma_m_s=None)
+        default_factory=lambda: GraphOptions(pose_prior="none", shape_prior_sigma=0.25, shape="estimate", joint_sigma_m_s=None, moving_body_swaps=True)
     )
 
     def check(self) -> None:
