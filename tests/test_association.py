@@ -153,6 +153,7 @@ def reprojection(clip, lab, tracks_of: dict[str, int]) -> dict[str, float]:
     return {c: float(np.nanmedian(errors[k])) for k, c in enumerate(cams)} | {"all": float(np.nanmedian(errors))}
 
 
+@pytest.mark.slow  # 10 s; the bench and test_real_clip check the chosen person on the clip too
 def test_real_clip_people_are_the_same_in_every_camera(clip, lab):
     """Guessed intrinsics (f = 2304 px; the lab's are 1675-1681 px, 37 % shorter): both people are
     found in all four cameras, as with the lab's intrinsics; triangulated with the lab's

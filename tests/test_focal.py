@@ -36,6 +36,7 @@ def run(capture, truth, focal: str):
     return result, evaluate(result, truth).metrics
 
 
+@pytest.mark.slow  # 20 s: three SmartMocap runs
 def test_guessed_focal_lengths_are_estimated(captures):
     calibrated, guessed = captures
     _, reference = run(calibrated, calibrated, "guessed")  # nothing guessed: nothing estimated

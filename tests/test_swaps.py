@@ -47,7 +47,7 @@ def capture():
 
 @pytest.fixture(scope="module")
 def runs(capture):
-    return {"handled": run(capture, True), "as_detected": run(capture, False)}
+    return {"handled": run(capture, True)}
 
 
 def test_relabelled_frames_match_the_simulators_record(runs, capture):
@@ -69,9 +69,11 @@ def test_relabelled_frames_match_the_simulators_record(runs, capture):
     assert set(np.unique(np.concatenate([t.swaps for t in result.cameras.values()]))) <= set(range(len(SWAP_KINDS)))
 
 
-def test_labels_as_detected_are_clearly_worse(runs):
+@pytest.mark.slow  # 9 s: another SmartMocap run
+def test_labels_as_detected_are_clearly_worse(runs, capture):
     """The body and the static cameras: MPJPE 4.8 against 2.6 cm, RA-MPJPE 12.3 against 4.4 cm,
     static cameras 7.9 against 5.0 cm (measured)."""
+    runs["as_detected"] = run(capture, False)
     handled, as_detected = runs["handled"][1], runs["as_detected"][1]
     assert as_detected["mpjpe_m"] > 1.5 * handled["mpjpe_m"]
     assert as_detected["ra_mpjpe_m"] > 2.0 * handled["ra_mpjpe_m"]
