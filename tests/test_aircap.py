@@ -227,6 +227,7 @@ def test_keypoints_are_undistorted_once_into_the_ideal_image(faultless):
         np.testing.assert_allclose(ob.observed, oa.observed, rtol=0, atol=1e-6)  # pixels
 
 
+@pytest.mark.slow  # 30 s, three AirCap runs; the undistortion itself is checked exactly above
 def test_distorted_lenses_fit_as_well_as_ideal_ones(faultless):
     """AirCap through the strong lens is as accurate as through the ideal one; ignoring the lens
     (as AirCap did before the one keypoint road) is worse. The two fits are not identical: the
