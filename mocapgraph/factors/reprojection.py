@@ -225,24 +225,24 @@ class _ReprojectionError:
         self.labelling = labelling
         self.focals = focals  # [(camera index, key)]: cameras whose focal length is a variable
 
-    def _choose(self, entry, args) -> np.ndarray:
-        """Per camera, the labelling whose robust cost is lowest at the current values (ties: as
-        detected), the cost of a relabelling included. One kernel pass without Jacobians gives the
-        predicted pixels; every hypothesis is then scored in numpy."""
-        C = len(self.cameras)
-        K = self.observed.shape[1]
-        if not (self.labelling.enabled and np.isfinite(self.scale.sigma_px)):
-            return np.zeros(C, dtype=np.intp)
+    def _predicted(self, entry, args) -> tuple[np.ndarray, np.ndarray]:
+        """``(C, K, 2)`` the body's points projected at the current values and ``(C, K)`` where
+        that is valid (mapped, in front): one kernel pass without Jacobians."""
+        C, K = self.observed.shape[:2]
         # observed 0 and weight 1: the residual is the predicted pixel itself, where it is valid
         ones = np.ascontiguousarray(np.broadcast_to(entry.table.mapped[None].astype(float), (C, K)))
         predicted, _, in_front = self.kernel(*entry.arrays, *args, np.zeros((C, K, 2)), ones, np.inf, self.min_depth, False)
-        predicted = predicted.reshape(C, K, 2)
+        return predicted.reshape(C, K, 2), in_front
+
+    def _choose(self, entry, predicted, in_front) -> np.ndarray:
+        """Per camera, the labelling whose robust cost is lowest at the ``predicted`` pixels (ties:
+        as detected), the cost of a relabelling included; every hypothesis scored in numpy."""
         sigma2 = self.scale.sigma_px**2
-        costs = np.empty((len(self.labelling.permutations), C))
+        costs = np.empty((len(self.labelling.permutations), len(self.cameras)))
         for h, perm in enumerate(self.labelling.permutations):
             e = predicted - self.observed[:, perm]
             e2 = np.sum(e * e, axis=-1)
-            rho = e2 if not np.isfinite(sigma2) else sigma2 * e2 / (sigma2 + e2)
+            rho = sigma2 * e2 / (sigma2 + e2)  # only under a robust scale (see __call__)
             w = self.weights[:, perm] * entry.table.mapped[None]
             ok = in_front & np.isfinite(e2) & (w > 0)
             costs[h] = 0.5 * np.sum(np.where(ok, w * w * np.where(ok, rho, 0.0), 0.0), axis=1)
@@ -251,14 +251,11 @@ class _ReprojectionError:
             costs[~np.asarray(self.labelling.allowed).T] = np.inf
         return np.argmin(costs, axis=0)
 
-    def _focal_jacobian(self, entry, args, observed, weights) -> np.ndarray:
+    def _focal_jacobian(self, intrinsics, predicted, in_front, observed, weights) -> np.ndarray:
         """``(2CK, F)`` the residual's derivative by each variable focal length's log scale ``s``
         (``fx, fy = e^s (fx0, fy0)``): ``∂(u - cx)/∂s = u - cx``, through the robust weight
         ``∂r/∂e = w s_gm (I - e eᵀ/(σ² + |e|²))`` of the kernel (module docstring)."""
         C, K = observed.shape[:2]
-        ones = np.ascontiguousarray(np.broadcast_to(entry.table.mapped[None].astype(float), (C, K)))
-        predicted, _, in_front = self.kernel(*entry.arrays, *args, np.zeros((C, K, 2)), ones, np.inf, self.min_depth, False)
-        predicted = predicted.reshape(C, K, 2)
         valid = in_front & np.isfinite(observed).all(-1) & (weights > 0)
         e = np.where(valid[..., None], predicted - np.nan_to_num(observed), 0.0)
         w = np.where(valid, weights, 0.0)
@@ -268,7 +265,7 @@ class _ReprojectionError:
             drde = (w * sigma / np.sqrt(denom))[..., None, None] * (np.eye(2) - e[..., :, None] * e[..., None, :] / denom[..., None, None])
         else:
             drde = w[..., None, None] * np.eye(2)
-        centred = predicted - args[3][:, None, 2:]  # (u - cx, v - cy)
+        centred = predicted - intrinsics[:, None, 2:]  # (u - cx, v - cy)
         per_camera = np.einsum("ckij,ckj->cki", drde, centred).reshape(C, 2 * K)
         out = np.zeros((C, 2 * K, len(self.focals)))
         for i, (c, _) in enumerate(self.focals):
@@ -296,11 +293,15 @@ class _ReprojectionError:
                 intrinsics[c, :2] *= np.exp(values.atVector(key)[0])
         args = (root, pose.reshape(NUM_JOINTS - 1, 3), cameras, intrinsics)
         observed, rows = self.observed, self.rows
+        relabel = self.labelling is not None and self.labelling.enabled and np.isfinite(self.scale.sigma_px)
         try:
+            # the predicted pixels, once, for whichever of the labelling and the focal Jacobian needs them
+            predicted = self._predicted(entry, args) if relabel or (H is not None and self.focals) else None
             if self.labelling is not None:
                 # the body's point k is compared with the detection labelled perm[k]; whether the
                 # body has a point k at all (mapped) goes with k, not with the detection
-                self.labelling.choice = choice = self._choose(entry, args)
+                choice = self._choose(entry, *predicted) if relabel else np.zeros(len(self.cameras), dtype=np.intp)
+                self.labelling.choice = choice
                 perm = self.labelling.permutations[choice]  # (C, K)
                 observed = np.ascontiguousarray(np.take_along_axis(observed, perm[..., None], axis=1))
                 detected = np.take_along_axis(self.weights, perm, axis=1)
@@ -312,7 +313,7 @@ class _ReprojectionError:
         except ValueError as exc:
             raise MocapgraphError(str(exc)) from None
         if H is not None and self.focals:
-            focal_jac = self._focal_jacobian(entry, args, observed, weights)
+            focal_jac = self._focal_jacobian(intrinsics, *predicted, observed, weights)
         if rows is not None:
             residual = residual[rows]
             jac = None if jac is None else jac[rows]
