@@ -122,3 +122,23 @@ def fresh_logging():
         logger.removeHandler(handler)
     logger.setLevel(logging.NOTSET)
     logger.propagate = True
+
+
+# ---------------------------------------------------------------------------------------------
+# The real clip in tests/data/real (tests/real_clip.py)
+
+
+@pytest.fixture(scope="session")
+def clip():
+    """Every person track of the real clip (:func:`real_clip.load_clip`)."""
+    from real_clip import load_clip
+
+    return load_clip()
+
+
+@pytest.fixture(scope="session")
+def lab():
+    """The clip's Qualisys calibration by camera name."""
+    from real_clip import calibration
+
+    return {c.name: c for c in calibration()}

@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 import pytest
 from people_scene import SWAP, make_scene
-from real_clip import calibration, clip_capture, load_clip
+from real_clip import clip_capture
 
 from mocapgraph.data_tools.geometry.association import associate_tracks, normalised_points, score_pair
 from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
@@ -110,16 +110,6 @@ def test_association_errors():
 
 # ---------------------------------------------------------------------------------------------
 # The real clip
-
-
-@pytest.fixture(scope="module")
-def clip():
-    return load_clip()
-
-
-@pytest.fixture(scope="module")
-def lab():
-    return {c.name: c for c in calibration()}
 
 
 def reprojection(clip, lab, tracks_of: dict[str, int]) -> dict[str, float]:

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from real_clip import calibration, clip_capture, load_clip
+from real_clip import clip_capture
 
 from mocapgraph.benchmarks import real
 from mocapgraph.body.keypoint_formats import get_format
@@ -23,16 +23,6 @@ from mocapgraph.data_tools.geometry.triangulation import projection_matrix, tria
 from mocapgraph.data_tools.io.capture import load_capture
 from mocapgraph.data_tools.tracking.track_files import load_track_set, save_track_set
 from mocapgraph.errors import MocapgraphError
-
-
-@pytest.fixture(scope="module")
-def clip():
-    return load_clip()
-
-
-@pytest.fixture(scope="module")
-def lab():
-    return {c.name: c for c in calibration()}
 
 
 @pytest.fixture(scope="module")
