@@ -20,7 +20,7 @@ from mocapgraph.factors.keys import camera_key, pose_key, root_key, shape_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.reprojection_kernel import reproject_numpy
 from mocapgraph.factors.robust import RobustScale
-from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
+from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
 
 FORMAT = "coco17"
 INTRINSICS = np.array([1000.0, 980.0, 640.0, 360.0])
@@ -618,6 +618,30 @@ def test_pose3_smoothness_error_and_jacobian(which):
     e = gtsam.Pose3.Logmap(a.between(b)) / sigmas
     assert factor.error(values) == pytest.approx(0.5 * e @ e, rel=1e-9)
     assert_jacobians(factor, values)
+
+
+def test_camera_acceleration_error_and_jacobian():
+    """The three-point second derivative of the centres over σ (uneven steps), against one
+    computed from the velocities of the two steps; zero along a constant velocity whatever the
+    rotations; Jacobians by central differences."""
+    rng = np.random.default_rng(5)
+    poses = [random_pose3(rng) for _ in range(3)]
+    times = np.array([0.10, 0.14, 0.19])
+    values = gtsam.Values()
+    for k, pose in enumerate(poses, start=1):
+        values.insert(k, pose)
+    factor = camera_acceleration_factor([1, 2, 3], times, 3.0)
+    p = [pose.translation() for pose in poses]
+    v01, v12 = (p[1] - p[0]) / 0.04, (p[2] - p[1]) / 0.05
+    acceleration = (v12 - v01) / ((times[2] - times[0]) / 2)
+    assert factor.error(values) == pytest.approx(0.5 * np.sum((acceleration / 3.0) ** 2), rel=1e-9)
+    assert_jacobians(factor, values)
+    steady = gtsam.Values()
+    for k, t in enumerate(times, start=1):
+        steady.insert(k, gtsam.Pose3(random_pose3(rng).rotation(), np.array([1.0, -2.0, 0.5]) + t * np.array([0.7, 1.3, -0.2])))
+    assert factor.error(steady) == pytest.approx(0.0, abs=1e-20)
+    with pytest.raises(MocapgraphError, match="3 consecutive"):
+        camera_acceleration_factor([1, 2], times[:2], 3.0)
 
 
 def test_root_smoothness_takes_six_sigmas():

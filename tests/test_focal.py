@@ -19,8 +19,8 @@ FACTORS = (1.3, 0.77)
 
 @pytest.fixture(scope="module")
 def captures():
-    # without detector faults: the hand-held camera's whole-body swaps are not undone (test_swaps)
-    # and would blur its focal length's comparison
+    # without detector faults: the focal lengths' comparison is the subject, not the swaps
+    # (test_swaps)
     calibrated = synthesize("rich", seed=0, duration_s=2.0, detector_faults="none")
     guessed = copy.deepcopy(calibrated)
     for c, cam in enumerate(guessed.cameras):

@@ -51,18 +51,23 @@ def runs(capture):
 
 
 def test_relabelled_frames_match_the_simulators_record(runs, capture):
-    """Static cameras: precision and recall of the relabelled frames >= 0.95. The hand-held
-    camera relabels nothing wrongly; it undoes limb swaps only (a moving camera's whole-body swap
-    trades against its pose at that frame going round the person, so it is not relabelled; its
-    body swaps, 8 frames here, are left to the robust cost). The notes count them per camera."""
+    """Precision and recall of the relabelled frames >= 0.95 over every camera. The hand-held
+    camera's whole-body swaps too (12 of its 13 swapped frames found, none wrongly, measured):
+    its constant-velocity model keeps its pose from going round the person to explain them, and
+    the final pass relabels them. The notes count them per camera."""
     result, _ = runs["handled"]
     tp, fp, fn = confusion(result, capture, moving=False)
     assert tp >= 40, "the capture should hold sustained swaps"
     assert tp / (tp + fp) >= 0.95 and tp / (tp + fn) >= 0.95, (tp, fp, fn)
-    tp, fp, fn = confusion(result, capture, moving=True)
-    assert fp == 0 and tp >= 3, (tp, fp, fn)
     moving = next(cam for cam in capture.cameras if cam.moving)
-    assert not np.any(result.cameras[moving.name].swaps == SWAP_KINDS.index("body"))
+    body = SWAP_KINDS.index("body")
+    (truth,) = capture.ground_truth.swaps[moving.name].values()
+    truth = truth[np.searchsorted(moving.timestamps, result.cameras[moving.name].timestamps)]
+    assert np.sum(truth == body) >= 5, "the hand-held camera should hold a sustained whole-body swap"
+    tp, fp, fn = confusion(result, capture, moving=True)
+    assert fp == 0 and tp / (tp + fn) >= 0.9, (tp, fp, fn)
+    tp, fp, fn = confusion(result, capture)
+    assert tp / (tp + fp) >= 0.95 and tp / (tp + fn) >= 0.95, (tp, fp, fn)
     for cam in capture.cameras:
         if np.any(result.cameras[cam.name].swaps > 0):
             assert any(n.startswith(f"camera {cam.name}: left/right labels undone") for n in result.parameters["notes"])

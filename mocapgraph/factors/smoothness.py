@@ -55,6 +55,36 @@ def camera_smoothness_factor(
     return root_smoothness_factor(key_a, key_b, dt, (sigma_rot_rad_per_s, sigma_pos_m_per_s))
 
 
+def camera_acceleration_factor(keys, times, sigma_m_s2: float) -> gtsam.CustomFactor:
+    """Constant-velocity model of a moving camera's centre over three consecutive poses.
+
+    Residual ``(c0 p0 + c1 p1 + c2 p2) / σ`` (3,): the three-point second derivative
+    (:func:`second_difference_coefficients`) of the centres ``p_i`` (world frame, metres), so
+    the velocity is free and its change costs. A pose that goes round the person for a few
+    frames (to explain a detector's left/right swap) needs hundreds of m/s² here, where the
+    constant-pose factor (:func:`camera_smoothness_factor`) charges only its speed.
+
+    Args:
+        keys: the three ``world_T_camera`` Pose3 keys in time order.
+        times: ``(3,)`` their times in seconds, strictly increasing.
+        sigma_m_s2: standard deviation of the acceleration per axis, m/s².
+    """
+    keys = [int(k) for k in keys]
+    if len(keys) != 3:
+        raise MocapgraphError(f"camera_acceleration_factor needs 3 consecutive camera keys, got {len(keys)}")
+    scaled = second_difference_coefficients(times) / float(positive(sigma_m_s2, "sigma_m_s2"))
+
+    def error(this, values: gtsam.Values, H) -> np.ndarray:
+        poses = [values.atPose3(k) for k in keys]
+        if H is not None:
+            # The Pose3 tangent moves the centre by R v (rotation first): d p / d v = R.
+            for i, (pose, c) in enumerate(zip(poses, scaled)):
+                H[i] = np.hstack([np.zeros((3, 3)), c * pose.rotation().matrix()])
+        return sum(c * pose.translation() for pose, c in zip(poses, scaled))
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3), keys, error)
+
+
 def second_difference_coefficients(times) -> np.ndarray:
     """``(c0, c1, c2)`` with ``f''(t1) ≈ c0 f(t0) + c1 f(t1) + c2 f(t2)``, exact for quadratics.
 

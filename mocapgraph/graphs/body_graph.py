@@ -31,6 +31,7 @@ from mocapgraph.factors.keys import focal_key, motion_frame_key, motion_latent_k
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import (
+    camera_acceleration_factor,
     camera_smoothness_factor,
     joint_smoothness_factor,
     pose_smoothness_factor,
@@ -75,6 +76,11 @@ class GraphOptions:
     joint_sigma_m_s: float | None = 2.0  # SmartMocap's 3D joint smoothness; None: not used
     camera_sigma_rad_s: float = 1.0
     camera_sigma_m_s: float = 2.0
+    # Moving cameras' constant-velocity model (camera_acceleration_factor); None: not used. The
+    # simulated hand-held phones accelerate 1-4 m/s² rms per axis, the UAVs 0.1-2.7. SmartMocap
+    # uses 4; AirPose+ from the fusion regressor's start was worse with it (camera 2 at 3.5
+    # against 0.9 m on airpose, 3 s), and AirCap's cameras are pinned by their GPS/IMU priors.
+    camera_sigma_m_s2: float | None = None
     ground_sigma_m: float = 0.02
     camera_clearance_m: float = 0.3
     # Left/right swaps of the detector (mocapgraph.body.labelling): each camera-frame's labelling
@@ -82,9 +88,10 @@ class GraphOptions:
     # relabelling costs as much as one point `swap_cost_sigmas` times noise_px off.
     swaps: bool = True
     swap_cost_sigmas: float = 8.0
-    # Whole-body relabelling of moving cameras in the solve: only where something else pins
-    # their poses (AirCap's GPS/IMU priors); otherwise the camera's pose at that frame can go
-    # round the person instead (0.2-0.5 m off on rich without any swap, measured).
+    # Whole-body relabelling of moving cameras in the solve: only where something holds their
+    # poses in place (AirCap's GPS/IMU priors, SmartMocap's final pass from stitched chunks);
+    # from a rough start the camera's pose at that frame goes round the person as readily
+    # (0.2-0.5 m off on rich without any swap, measured).
     moving_body_swaps: bool = False
     # Focal lengths as variables: "guessed" (the cameras whose intrinsics are a guess), "all" or
     # "fixed"; each held near its given value by a log-normal prior of this width.
@@ -106,8 +113,10 @@ class GraphOptions:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
-        if self.joint_sigma_m_s is not None and not (np.isfinite(self.joint_sigma_m_s) and self.joint_sigma_m_s > 0):
-            raise MocapgraphError(f"joint_sigma_m_s: a finite number > 0 or None, got {self.joint_sigma_m_s!r}")
+        for name in ("joint_sigma_m_s", "camera_sigma_m_s2"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise MocapgraphError(f"{name}: a finite number > 0 or None, got {value!r}")
 
 
 @dataclass
@@ -257,10 +266,11 @@ class BodyGraph:
             if self.options.swaps:
                 # A moving camera's pose at a frame can go round to the person's other side:
                 # relabelling its whole body there would trade against that (moving_body_swaps).
+                # A held camera (AirPose's reference) cannot go anywhere.
                 whole = SWAP_KINDS.index("body")
                 allowed = np.ones((len(obs), len(SWAP_KINDS)), dtype=bool)
                 if not self.options.moving_body_swaps:
-                    allowed[[self.model.cameras[o.camera].moving for o in obs], whole] = False
+                    allowed[[self.model.cameras[o.camera].moving and held is None for o, held in zip(obs, fixed)], whole] = False
                 labelling = Labelling(self.permutations(fmt), 0.5 * self.options.swap_cost_sigmas**2, allowed=allowed)
                 self.labellings[i].append((labelling, obs))
             graph.add(
@@ -329,7 +339,8 @@ class BodyGraph:
             graph.add(joint_smoothness_factor(self.cache("body"), a, b, self.shape_key, dt, o.joint_sigma_m_s, fixed_shape=self.fixed_shape))
 
     def add_camera_smoothness(self, graph: gtsam.NonlinearFactorGraph) -> None:
-        """Every estimated moving camera's consecutive frames in the model: constant-pose smoothness."""
+        """Every estimated moving camera's consecutive frames in the model: constant-pose
+        smoothness on pairs, and the constant-velocity model of the centre on triples."""
         o = self.options
         for c in self.estimated:
             cam = self.model.cameras[c]
@@ -339,6 +350,10 @@ class BodyGraph:
             for j0, j1 in zip(frames[:-1], frames[1:]):
                 dt = max(float(cam.timestamps[j1] - cam.timestamps[j0]), 1e-3)
                 graph.add(camera_smoothness_factor(self.model.camera_var(c, j0), self.model.camera_var(c, j1), dt, o.camera_sigma_rad_s, o.camera_sigma_m_s))
+            if o.camera_sigma_m_s2 is not None:
+                for triple in zip(frames[:-2], frames[1:-1], frames[2:]):
+                    keys = [self.model.camera_var(c, j) for j in triple]
+                    graph.add(camera_acceleration_factor(keys, cam.timestamps[list(triple)], o.camera_sigma_m_s2))
 
     def add_ground(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
         """E_HGP on state ``i``'s joints (the world's z = 0 plane)."""

@@ -89,7 +89,9 @@ class SmartmocapOptions:
     # rig it halved the root orientation error (RA-MPJPE 3.7 -> 2.1 cm) and brought the scene's
     # scale within 4.4 % instead of 7.2 % for the held average body (measured). AirPose's two far
     # cameras cannot hold it (docs/airpose.md).
-    graph: GraphOptions = field(default_factory=lambda: GraphOptions(shape="estimate"))
+    # Moving cameras: a constant-velocity model, so that the final pass may relabel their whole
+    # body (a camera without it goes round the person to explain a swap: 6 m on rich, 2 s).
+    graph: GraphOptions = field(default_factory=lambda: GraphOptions(shape="estimate", moving_body_swaps=True, camera_sigma_m_s2=4.0))
 
     def check(self) -> None:
         self.graph.check()
@@ -155,8 +157,11 @@ def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
     o = task.options
     n = task.model.num_states
     # A chunk is too short to tell a camera's focal length from its distance: focal lengths are
-    # estimated in the final pass over the whole sequence only.
-    graph_options = replace(o.graph, focal="fixed")
+    # estimated in the final pass over the whole sequence only. Nor may a chunk relabel a moving
+    # camera's whole body: from its rough start the camera's pose goes round the person as
+    # readily (false relabelled runs, 0.2-0.5 m off, on rich without swaps); the final pass,
+    # from the stitched cameras, does it (moving_body_swaps).
+    graph_options = replace(o.graph, focal="fixed", moving_body_swaps=False)
     bg = BodyGraph(task.model, load_body_model(), graph_options, learned=LearnedPriors.load(o.graph.pose_prior, o.motion_prior if n == WINDOW else "none"))
     graph, values = sequence_graph(bg, task.start, o.gauge_sigmas)
     body_keys = [root_key(i) for i in range(n)] + [pose_key(i) for i in range(n)] + [shape_key()]
