@@ -420,6 +420,7 @@ class SMPLBody(BodyModel):
         # Rest joints of the 22 driven joints, affine in β (frozen joints' positions cancel out).
         joints0 = regressor[:NUM_JOINTS] @ v_template  # (22, 3)
         d_joints = np.einsum("jv,vxs->jxs", regressor[:NUM_JOINTS], shapedirs)  # (22, 3, S)
+        self._pelvis0, self._d_pelvis = joints0[0], d_joints[0]
         child = np.arange(1, NUM_JOINTS)
         self._offsets0 = np.zeros((NUM_JOINTS, 3))
         self._d_offsets = np.zeros((NUM_JOINTS, 3, S))
@@ -490,6 +491,11 @@ class SMPLBody(BodyModel):
     @property
     def default_shape(self) -> np.ndarray:
         return np.zeros(self.num_betas)
+
+    def rest_pelvis(self, shape) -> np.ndarray:
+        """``(3,)`` the pelvis joint of the unposed model in the model file's own frame: SMPL's
+        ``transl`` is our root translation minus this (SMPL turns the root about it)."""
+        return self._pelvis0 + self._d_pelvis @ self.check_shape(shape)
 
     def _table(self, shape: np.ndarray) -> BodyTable:
         return BodyTable(
