@@ -3,36 +3,17 @@ or SMPL tools (see :mod:`mocapgraph.data_tools.io.exporters`)."""
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
-from mocapgraph.cli.common import command
-from mocapgraph.errors import MocapgraphError
-
-log = logging.getLogger(__name__)
-
-
-def result_capture(result, given: Path | None):
-    """The capture a result came from: ``given``, else the one the result names if it can be
-    read there (None, with a note, when it cannot: what needs it is then left out)."""
-    from mocapgraph.data_tools.io.capture import load_capture
-
-    if given is not None:
-        return load_capture(given)
-    try:
-        return load_capture(result.capture)
-    except MocapgraphError as exc:
-        log.warning("the result's capture is not readable (%s); pass --capture for the cameras' lenses", exc)
-        return None
+from mocapgraph.cli.common import command, result_body, result_capture
 
 
 def cmd_export(args) -> None:
-    from mocapgraph.body import load_body_model
     from mocapgraph.data_tools.io.exporters import export_result
     from mocapgraph.data_tools.io.result import load_result
 
     result = load_result(args.result)
-    body = load_body_model(result.body_model, args.model_path) if args.model_path is not None and result.has_body_parameters else None
+    body = result_body(result, args.model_path)
     capture = result_capture(result, args.capture) if args.format == "gltf" else None
     path = export_result(result, args.format, args.out, body=body, capture=capture, overwrite=args.overwrite)
     print(f"wrote {path.resolve()}")

@@ -1,0 +1,144 @@
+"""Overlays: the rasteriser against an independent point-in-polygon test, the drawn skeleton
+against OpenCV's own projection, and the video read back."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from matplotlib.path import Path as PolygonPath
+
+from mocapgraph.body import load_body_model
+from mocapgraph.body.rotations import axis_rotation
+from mocapgraph.data_tools.evaluation.overlay import (
+    BACKGROUND_GREY,
+    DETECTION_BGR,
+    JOINT_BGR,
+    draw_mesh,
+    overlay_frame,
+    overlay_scene,
+    rasterize,
+    write_overlay,
+)
+from mocapgraph.data_tools.io.capture import Camera, Capture, Detector, write_capture
+from mocapgraph.data_tools.io.result import CameraTrack, Result, write_result
+from mocapgraph.errors import MocapgraphError
+
+SIZE = (160, 120)
+IMAGE = (320, 240)
+
+
+def test_rasterize_covers_the_pixels_inside_each_triangle():
+    tri = np.array([[10.3, 12.7], [140.6, 30.2], [55.1, 101.4]])
+    seen = rasterize(tri, np.full(3, 2.0), np.array([[0, 1, 2]]), SIZE)
+    u, v = np.meshgrid(np.arange(SIZE[0]), np.arange(SIZE[1]))
+    inside = PolygonPath(tri).contains_points(np.stack([u.ravel(), v.ravel()], axis=1)).reshape(v.shape)
+    np.testing.assert_array_equal(seen >= 0, inside)
+    assert inside.sum() > 4000  # large triangles take the widest windows of the batching
+
+
+def test_rasterize_keeps_the_nearest_triangle_per_pixel():
+    # Two triangles crossing in depth: the first is tilted (depth 1 m at the left, 5 m at the right),
+    # the second stands at 3 m; left of the crossing the first is nearer, right of it the second.
+    pixels = np.array([[0.2, 0.3], [159.6, 0.4], [0.5, 119.7], [159.8, 119.6], [0.3, 60.1], [159.7, 0.2], [159.4, 119.8]])
+    depth = np.array([1.0, 5.0, 1.0, 5.0, 3.0, 3.0, 3.0])
+    faces = np.array([[0, 1, 2], [2, 1, 3], [4, 5, 6]])
+    seen = rasterize(pixels, depth, faces, SIZE)
+    # Depth on the tilted quad is 1/z-affine: 1/z = 1 - (u / 159.6 …) * (1 - 1/5); it equals 3 m where 1/z = 1/3.
+    u_cross = (1 - 1 / 3) / (1 - 1 / 5) * 159.6
+    row = seen[60]
+    assert np.all(row[5 : int(u_cross) - 2] != 2) and np.all(np.isin(row[int(u_cross) + 3 : 155], [2]))
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """A standing body 4 m in front of a small camera with lens distortion, 3 frames, and a
+    simulated detector: a capture on disk and the body's own motion as a result."""
+    body = load_body_model("anny")
+    T = 3
+    root = np.tile(np.eye(4), (T, 1, 1))
+    root[:, :3, :3] = axis_rotation("x", np.pi / 2)  # body up = world Z, facing −Y (the camera)
+    root[:, :3, 3] = [[0.0, 0.0, 1.0], [0.05, 0.0, 1.0], [0.1, 0.0, 1.0]]
+    pose = np.zeros((T, 21, 3))
+    pose[:, 15] = [[0, 0, -0.5 * t] for t in range(T)]  # the left shoulder lowers the arm
+    shape = body.default_shape
+    fk = body.forward(shape, root, pose)
+    world_T_camera = np.eye(4)
+    world_T_camera[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # x right = +X, y down = −Z, z forward = +Y
+    world_T_camera[:3, 3] = [0.0, -4.0, 1.0]
+    K = np.array([[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
+    distortion = np.array([-0.05, 0.01, 0.001, -0.001, 0.0])
+    times = np.arange(T) / 10.0
+    detections = np.full((T, 17, 3), np.nan)
+    projected = cv2.projectPoints(fk.keypoints[:, :17].reshape(-1, 3), cv2.Rodrigues(world_T_camera[:3, :3].T)[0], -world_T_camera[:3, :3].T @ world_T_camera[:3, 3], K, distortion)[0]
+    detections[..., :2] = projected.reshape(T, 17, 2) + 3.0
+    detections[..., 2] = 0.9
+    camera = Camera("cam", K, distortion, IMAGE, False, times, 10.0, {"sim": Detector("sim", "coco17", detections)})
+    root_dir = tmp_path_factory.mktemp("overlay")
+    capture_path = write_capture(Capture("unit", [camera], world_frame="test"), root_dir / "capture")
+    result = Result(
+        pipeline="unit", capture=str(capture_path), world_frame="capture", timestamps=times, joints=fk.joints,
+        body_model="anny", root=root, pose=pose, shape=shape, cameras={"cam": CameraTrack(times, np.tile(world_T_camera, (T, 1, 1)))},
+    )  # fmt: skip
+    return body, camera, result, write_result(result, root_dir / "result"), K, distortion, world_T_camera
+
+
+def test_skeleton_is_drawn_where_opencv_projects_the_joints(scene):
+    body, camera, result, _, K, distortion, world_T_camera = scene
+    R, t = world_T_camera[:3, :3], world_T_camera[:3, 3]
+    drawn = overlay_scene(result, camera, body)
+    drawn.detections = None  # their rings would cover some joints
+    for frame in range(3):
+        image = overlay_frame(np.full((IMAGE[1], IMAGE[0], 3), BACKGROUND_GREY, np.uint8), drawn, frame, camera)
+        pixels = cv2.projectPoints(result.joints[frame], cv2.Rodrigues(R.T)[0], -R.T @ t, K, distortion)[0][:, 0]
+        inside = np.all((pixels > 2) & (pixels < np.array(IMAGE) - 3), axis=1)
+        assert inside.sum() >= 20
+        at = np.round(pixels[inside]).astype(int)
+        np.testing.assert_array_equal(image[at[:, 1], at[:, 0]], np.tile(JOINT_BGR, (len(at), 1)))
+        # The mesh is drawn where OpenCV projects its vertices, and nowhere else.
+        vertices = drawn.vertices[frame]
+        image = draw_mesh(np.full_like(image, BACKGROUND_GREY), vertices, drawn.faces, world_T_camera, K, distortion)
+        at = np.round(cv2.projectPoints(vertices, cv2.Rodrigues(R.T)[0], -R.T @ t, K, distortion)[0][:, 0]).astype(int)
+        changed = np.any(image != BACKGROUND_GREY, axis=2)
+        # (within a pixel: thin parts such as fingers cover no pixel centre at this size)
+        assert cv2.dilate(changed.astype(np.uint8), np.ones((3, 3), np.uint8))[at[:, 1], at[:, 0]].mean() > 0.99
+        near = np.zeros_like(changed, dtype=np.uint8)
+        near[at[:, 1], at[:, 0]] = 1
+        near = cv2.dilate(near, np.ones((5, 5), np.uint8)).astype(bool)
+        assert np.sum(changed & ~near) < 0.01 * changed.sum()
+
+
+def test_overlay_video_reads_back(scene, tmp_path):
+    body, camera, result, _, *_ = scene
+    capture = Capture("unit", [camera], world_frame="test")
+    path = write_overlay(result, capture, "cam", tmp_path / "cam.mp4", body=body)
+    reader = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, image = reader.read()
+        if not ok:
+            break
+        frames.append(image)
+    assert len(frames) == 3 and frames[0].shape == (IMAGE[1], IMAGE[0], 3)
+    expected = overlay_frame(np.full((IMAGE[1], IMAGE[0], 3), BACKGROUND_GREY, np.uint8), overlay_scene(result, camera, body), 1, camera)
+    assert np.mean(np.abs(frames[1].astype(float) - expected)) < 8.0  # MPEG-4 compression
+    ring = camera.detectors["sim"].keypoints[1, 0, :2] + [6, 0]  # on the nose's detection ring
+    assert np.all(expected[int(round(ring[1])), int(round(ring[0]))] == DETECTION_BGR)
+    with pytest.raises(MocapgraphError, match="already exists"):
+        write_overlay(result, capture, "cam", path, body=body)
+    with pytest.raises(MocapgraphError, match="has no camera 'other'"):
+        write_overlay(result, capture, "other", tmp_path / "other.mp4", body=body)
+    with pytest.raises(MocapgraphError, match="name it cam.mp4"):
+        write_overlay(result, capture, "cam", tmp_path / "cam.avi", body=body)
+
+
+def test_overlay_command(scene, tmp_path, capsys):
+    from mocapgraph.cli.main import main
+
+    *_, result_path, _, _, _ = scene
+    out = tmp_path / "o.mp4"
+    assert main(["overlay", str(result_path), "--camera", "cam", "--out", str(out), "--max-frames", "2"]) == 0
+    assert capsys.readouterr().out.strip() == f"wrote {out.resolve()}"
+    assert int(cv2.VideoCapture(str(out)).get(cv2.CAP_PROP_FRAME_COUNT)) == 2
+    assert main(["overlay", str(tmp_path / "nothing"), "--camera", "cam", "--out", str(out), "--overwrite"]) == 2
+    assert "nothing: directory not found" in capsys.readouterr().err
