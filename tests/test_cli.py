@@ -89,7 +89,8 @@ def test_capture_info_says_what_the_loader_repaired(tmp_path, capsys):
 @pytest.mark.parametrize(
     "args",
     [["--help"], ["body", "--help"], ["body", "info", "--help"], ["bench", "body", "--help"], ["bench", "aircap", "--help"],
-     ["run", "aircap", "--help"], ["synth", "--help"], ["eval", "--help"], ["demo", "--help"]],
+     ["run", "aircap", "--help"], ["synth", "--help"], ["eval", "--help"], ["demo", "--help"], ["export", "--help"], ["overlay", "--help"],
+     ["view", "--help"]],
 )  # fmt: skip
 def test_every_subcommand_has_help(args):
     proc = subprocess.run([sys.executable, "-m", "mocapgraph.cli.main", *args], capture_output=True, text=True)

@@ -6,10 +6,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from camera_scene import IMAGE, camera_scene, opencv_pixels
 from matplotlib.path import Path as PolygonPath
 
-from mocapgraph.body import load_body_model
-from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.data_tools.evaluation.overlay import (
     BACKGROUND_GREY,
     DETECTION_BGR,
@@ -20,12 +19,10 @@ from mocapgraph.data_tools.evaluation.overlay import (
     rasterize,
     write_overlay,
 )
-from mocapgraph.data_tools.io.capture import Camera, Capture, Detector, write_capture
-from mocapgraph.data_tools.io.result import CameraTrack, Result, write_result
+from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.errors import MocapgraphError
 
 SIZE = (160, 120)
-IMAGE = (320, 240)
 
 
 def test_rasterize_covers_the_pixels_inside_each_triangle():
@@ -52,45 +49,17 @@ def test_rasterize_keeps_the_nearest_triangle_per_pixel():
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    """A standing body 4 m in front of a small camera with lens distortion, 3 frames, and a
-    simulated detector: a capture on disk and the body's own motion as a result."""
-    body = load_body_model("anny")
-    T = 3
-    root = np.tile(np.eye(4), (T, 1, 1))
-    root[:, :3, :3] = axis_rotation("x", np.pi / 2)  # body up = world Z, facing −Y (the camera)
-    root[:, :3, 3] = [[0.0, 0.0, 1.0], [0.05, 0.0, 1.0], [0.1, 0.0, 1.0]]
-    pose = np.zeros((T, 21, 3))
-    pose[:, 15] = [[0, 0, -0.5 * t] for t in range(T)]  # the left shoulder lowers the arm
-    shape = body.default_shape
-    fk = body.forward(shape, root, pose)
-    world_T_camera = np.eye(4)
-    world_T_camera[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # x right = +X, y down = −Z, z forward = +Y
-    world_T_camera[:3, 3] = [0.0, -4.0, 1.0]
-    K = np.array([[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
-    distortion = np.array([-0.05, 0.01, 0.001, -0.001, 0.0])
-    times = np.arange(T) / 10.0
-    detections = np.full((T, 17, 3), np.nan)
-    projected = cv2.projectPoints(fk.keypoints[:, :17].reshape(-1, 3), cv2.Rodrigues(world_T_camera[:3, :3].T)[0], -world_T_camera[:3, :3].T @ world_T_camera[:3, 3], K, distortion)[0]
-    detections[..., :2] = projected.reshape(T, 17, 2) + 3.0
-    detections[..., 2] = 0.9
-    camera = Camera("cam", K, distortion, IMAGE, False, times, 10.0, {"sim": Detector("sim", "coco17", detections)})
-    root_dir = tmp_path_factory.mktemp("overlay")
-    capture_path = write_capture(Capture("unit", [camera], world_frame="test"), root_dir / "capture")
-    result = Result(
-        pipeline="unit", capture=str(capture_path), world_frame="capture", timestamps=times, joints=fk.joints,
-        body_model="anny", root=root, pose=pose, shape=shape, cameras={"cam": CameraTrack(times, np.tile(world_T_camera, (T, 1, 1)))},
-    )  # fmt: skip
-    return body, camera, result, write_result(result, root_dir / "result"), K, distortion, world_T_camera
+    return camera_scene(tmp_path_factory.mktemp("overlay"))
 
 
 def test_skeleton_is_drawn_where_opencv_projects_the_joints(scene):
-    body, camera, result, _, K, distortion, world_T_camera = scene
-    R, t = world_T_camera[:3, :3], world_T_camera[:3, 3]
+    body, camera, result, world_T_camera = scene.body, scene.camera, scene.result, scene.world_T_camera
+    K, distortion = camera.K, camera.distortion
     drawn = overlay_scene(result, camera, body)
     drawn.detections = None  # their rings would cover some joints
     for frame in range(3):
         image = overlay_frame(np.full((IMAGE[1], IMAGE[0], 3), BACKGROUND_GREY, np.uint8), drawn, frame, camera)
-        pixels = cv2.projectPoints(result.joints[frame], cv2.Rodrigues(R.T)[0], -R.T @ t, K, distortion)[0][:, 0]
+        pixels = opencv_pixels(result.joints[frame], world_T_camera, K, distortion)
         inside = np.all((pixels > 2) & (pixels < np.array(IMAGE) - 3), axis=1)
         assert inside.sum() >= 20
         at = np.round(pixels[inside]).astype(int)
@@ -98,7 +67,7 @@ def test_skeleton_is_drawn_where_opencv_projects_the_joints(scene):
         # The mesh is drawn where OpenCV projects its vertices, and nowhere else.
         vertices = drawn.vertices[frame]
         image = draw_mesh(np.full_like(image, BACKGROUND_GREY), vertices, drawn.faces, world_T_camera, K, distortion)
-        at = np.round(cv2.projectPoints(vertices, cv2.Rodrigues(R.T)[0], -R.T @ t, K, distortion)[0][:, 0]).astype(int)
+        at = np.round(opencv_pixels(vertices, world_T_camera, K, distortion)).astype(int)
         changed = np.any(image != BACKGROUND_GREY, axis=2)
         # (within a pixel: thin parts such as fingers cover no pixel centre at this size)
         assert cv2.dilate(changed.astype(np.uint8), np.ones((3, 3), np.uint8))[at[:, 1], at[:, 0]].mean() > 0.99
@@ -109,7 +78,7 @@ def test_skeleton_is_drawn_where_opencv_projects_the_joints(scene):
 
 
 def test_overlay_video_reads_back(scene, tmp_path):
-    body, camera, result, _, *_ = scene
+    body, camera, result = scene.body, scene.camera, scene.result
     capture = Capture("unit", [camera], world_frame="test")
     path = write_overlay(result, capture, "cam", tmp_path / "cam.mp4", body=body)
     reader = cv2.VideoCapture(str(path))
@@ -135,7 +104,7 @@ def test_overlay_video_reads_back(scene, tmp_path):
 def test_overlay_command(scene, tmp_path, capsys):
     from mocapgraph.cli.main import main
 
-    *_, result_path, _, _, _ = scene
+    result_path = scene.result_path
     out = tmp_path / "o.mp4"
     assert main(["overlay", str(result_path), "--camera", "cam", "--out", str(out), "--max-frames", "2"]) == 0
     assert capsys.readouterr().out.strip() == f"wrote {out.resolve()}"

@@ -156,6 +156,7 @@ class OverlayScene:
     Attributes:
         world_T_camera: ``(T_c, 4, 4)`` the result's camera pose (NaN where it has none near the frame).
         joints: ``(T_c, 22, 3)`` world metres (NaN where no body state is near the frame).
+        keypoints: ``(T_c, K, 3)`` the result's keypoints likewise, or None (it has none).
         vertices: ``(T_c, V, 3)`` the posed mesh, or None (no mesh for this result).
         faces: ``(F, 3)``, or None.
         detections: ``(T_c, K, 3)`` the camera's first detector's keypoints, or None.
@@ -163,6 +164,7 @@ class OverlayScene:
 
     world_T_camera: np.ndarray
     joints: np.ndarray
+    keypoints: np.ndarray | None
     vertices: np.ndarray | None
     faces: np.ndarray | None
     detections: np.ndarray | None
@@ -183,6 +185,7 @@ def overlay_scene(result, camera, body=None) -> OverlayScene:
     state_at = nearest_frames(camera.timestamps, result.timestamps, half)
     world_T_camera = np.where((pose_at >= 0)[:, None, None], np.asarray(track.world_T_camera)[np.maximum(pose_at, 0)], np.nan)
     joints = np.where((state_at >= 0)[:, None, None], result.joints[np.maximum(state_at, 0)], np.nan)
+    keypoints = None if result.keypoints is None else np.where((state_at >= 0)[:, None, None], result.keypoints[np.maximum(state_at, 0)], np.nan)
     vertices = faces = None
     if body is not None and result.has_body_parameters:
         try:
@@ -197,7 +200,7 @@ def overlay_scene(result, camera, body=None) -> OverlayScene:
             vertices[has] = posed[np.searchsorted(seen, state_at[has])]
             faces = mesh.faces
     detections = next(iter(camera.detectors.values())).keypoints if camera.detectors else None
-    return OverlayScene(world_T_camera, joints, vertices, faces, detections)
+    return OverlayScene(world_T_camera, joints, keypoints, vertices, faces, detections)
 
 
 def overlay_frame(image: np.ndarray, scene: OverlayScene, frame: int, camera) -> np.ndarray:
