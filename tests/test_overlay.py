@@ -65,8 +65,8 @@ def test_skeleton_is_drawn_where_opencv_projects_the_joints(scene):
         at = np.round(pixels[inside]).astype(int)
         np.testing.assert_array_equal(image[at[:, 1], at[:, 0]], np.tile(JOINT_BGR, (len(at), 1)))
         # The mesh is drawn where OpenCV projects its vertices, and nowhere else.
-        vertices = drawn.vertices[frame]
-        image = draw_mesh(np.full_like(image, BACKGROUND_GREY), vertices, drawn.faces, world_T_camera, K, distortion)
+        vertices = drawn.vertices(frame)
+        image = draw_mesh(np.full_like(image, BACKGROUND_GREY), vertices, drawn.mesh.faces, world_T_camera, K, distortion)
         at = np.round(opencv_pixels(vertices, world_T_camera, K, distortion)).astype(int)
         changed = np.any(image != BACKGROUND_GREY, axis=2)
         # (within a pixel: thin parts such as fingers cover no pixel centre at this size)

@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mocapgraph.body.mesh import SkinnedMesh
 from mocapgraph.body.skeleton import PARENTS
 from mocapgraph.data_tools.geometry.camera_model import MIN_DEPTH_M, project_points
 from mocapgraph.data_tools.io.files import write_file_atomically
@@ -155,19 +156,29 @@ class OverlayScene:
 
     Attributes:
         world_T_camera: ``(T_c, 4, 4)`` the result's camera pose (NaN where it has none near the frame).
+        state: ``(T_c,)`` the body state nearest each frame, -1 where none is near.
         joints: ``(T_c, 22, 3)`` world metres (NaN where no body state is near the frame).
         keypoints: ``(T_c, K, 3)`` the result's keypoints likewise, or None (it has none).
-        vertices: ``(T_c, V, 3)`` the posed mesh, or None (no mesh for this result).
-        faces: ``(F, 3)``, or None.
         detections: ``(T_c, K, 3)`` the camera's first detector's keypoints, or None.
+        result, body, mesh: what :meth:`vertices` poses (mesh None: no mesh for this result).
     """
 
     world_T_camera: np.ndarray
+    state: np.ndarray
     joints: np.ndarray
     keypoints: np.ndarray | None
-    vertices: np.ndarray | None
-    faces: np.ndarray | None
     detections: np.ndarray | None
+    result: object
+    body: object = None
+    mesh: SkinnedMesh | None = None
+
+    def vertices(self, frame: int) -> np.ndarray | None:
+        """``(V, 3)`` the posed mesh at camera frame ``frame``, world metres, or None."""
+        t = int(self.state[frame])
+        if self.mesh is None or t < 0:
+            return None
+        res = self.result
+        return self.mesh.vertices(self.mesh.bone_poses(self.body.forward(res.shape, res.root[t : t + 1], res.pose[t : t + 1])))[0]
 
 
 def overlay_scene(result, camera, body=None) -> OverlayScene:
@@ -182,25 +193,21 @@ def overlay_scene(result, camera, body=None) -> OverlayScene:
     track = result.cameras[camera.name]
     half = 0.5 / camera.frame_rate
     pose_at = nearest_frames(camera.timestamps, track.timestamps, half)
-    state_at = nearest_frames(camera.timestamps, result.timestamps, half)
+    state = nearest_frames(camera.timestamps, result.timestamps, half)
     world_T_camera = np.where((pose_at >= 0)[:, None, None], np.asarray(track.world_T_camera)[np.maximum(pose_at, 0)], np.nan)
-    joints = np.where((state_at >= 0)[:, None, None], result.joints[np.maximum(state_at, 0)], np.nan)
-    keypoints = None if result.keypoints is None else np.where((state_at >= 0)[:, None, None], result.keypoints[np.maximum(state_at, 0)], np.nan)
-    vertices = faces = None
+
+    def at_states(points: np.ndarray) -> np.ndarray:
+        return np.where((state >= 0)[:, None, None], points[np.maximum(state, 0)], np.nan)
+
+    mesh = None
     if body is not None and result.has_body_parameters:
         try:
             mesh = body.mesh(result.shape)
         except MocapgraphError as exc:
             log.warning("drawing the skeleton only: %s", exc)
-        else:
-            seen = np.unique(state_at[state_at >= 0])
-            posed = mesh.vertices(mesh.bone_poses(body.forward(result.shape, result.root[seen], result.pose[seen])))
-            vertices = np.full((len(state_at), mesh.num_vertices, 3), np.nan)
-            has = state_at >= 0
-            vertices[has] = posed[np.searchsorted(seen, state_at[has])]
-            faces = mesh.faces
     detections = next(iter(camera.detectors.values())).keypoints if camera.detectors else None
-    return OverlayScene(world_T_camera, joints, keypoints, vertices, faces, detections)
+    keypoints = None if result.keypoints is None else at_states(result.keypoints)
+    return OverlayScene(world_T_camera, state, at_states(result.joints), keypoints, detections, result, body, mesh)
 
 
 def overlay_frame(image: np.ndarray, scene: OverlayScene, frame: int, camera) -> np.ndarray:
@@ -208,8 +215,9 @@ def overlay_frame(image: np.ndarray, scene: OverlayScene, frame: int, camera) ->
     out = image
     pose = scene.world_T_camera[frame]
     if np.all(np.isfinite(pose)):
-        if scene.vertices is not None and np.all(np.isfinite(scene.vertices[frame])):
-            out = draw_mesh(out, scene.vertices[frame], scene.faces, pose, camera.K, camera.distortion)
+        vertices = scene.vertices(frame)
+        if vertices is not None:
+            out = draw_mesh(out, vertices, scene.mesh.faces, pose, camera.K, camera.distortion)
         out = draw_skeleton(out, project_points(scene.joints[frame], pose, camera.K, camera.distortion)[0])
     if scene.detections is not None:
         out = draw_detections(out, scene.detections[frame])

@@ -9,6 +9,7 @@ trajectory in 3D. Results are drawn after the alignment ``eval`` uses for their 
 from __future__ import annotations
 
 import html
+import os
 from pathlib import Path
 
 import numpy as np
@@ -145,10 +146,24 @@ def plot_camera_trajectories(results: dict[str, Result], capture: Capture, path:
     return path
 
 
+def look_section(out_dir: Path, files: dict[str, Path], stills: dict[str, Path], commands: list[str]) -> str:
+    """HTML of a report's "look at it and take it elsewhere" part: links to ``files`` (label →
+    path), the ``stills`` (caption → PNG) and shell ``commands`` to run; paths relative to ``out_dir``."""
+
+    def rel(path: Path) -> str:
+        return html.escape(Path(os.path.relpath(path, out_dir)).as_posix())
+
+    links = "".join(f'<li><a href="{rel(p)}">{html.escape(label)}</a> (<code>{rel(p)}</code>)</li>' for label, p in files.items())
+    images = "".join(f'<figure><img src="{rel(p)}" alt="{html.escape(c)}" style="max-width:45%"><figcaption>{html.escape(c)}</figcaption></figure>' for c, p in stills.items())
+    lines = "".join(f"<pre>{html.escape(c)}</pre>" for c in commands)
+    return f"<h2>Look at it and take it elsewhere</h2><ul>{links}</ul>{lines}{images}"
+
+
 def write_report(
-    out_dir: Path, title: str, capture: Capture, results: dict[str, Result], evaluations: dict[str, Evaluation]
+    out_dir: Path, title: str, capture: Capture, results: dict[str, Result], evaluations: dict[str, Evaluation], extra: str = ""
 ) -> Path:
-    """``report.html`` with a metrics table (one row per result) and the figures."""
+    """``report.html`` with a metrics table (one row per result) and the figures; ``extra`` is HTML
+    appended at the end (e.g. :func:`look_section`)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for ev in evaluations.values() for k in ev.metrics if "." not in k))
     rows = []
@@ -178,6 +193,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px;text-align:right}}</style></head><b
 <h2>Root trajectory</h2><img src="root_trajectory.png" alt="root trajectory per axis">
 <h2>Error per frame</h2><img src="error_per_frame.png" alt="MPJPE per frame with detections">
 {cameras}
+{extra}
 </body></html>
 """
     path = out_dir / "report.html"
