@@ -86,9 +86,11 @@ def test_view_command_saves_a_recording(tmp_path, capsys):
 
     scene = camera_scene(tmp_path)
     out = tmp_path / "r.rrd"
-    assert main(["view", str(scene.result_path), "--save", str(out)]) == 0
+    assert main(["view", str(scene.result_path), "--save", str(out), "--mesh-every", "2"]) == 0
     assert capsys.readouterr().out.strip() == f"wrote {out.resolve()} (open it with: rerun {out})"
-    assert "/world/cameras/cam/reprojected" in read_rrd(out)
+    rrd = read_rrd(out)
+    assert "/world/cameras/cam/reprojected" in rrd
+    assert sorted(rrd["/world/estimate/mesh"]["Mesh3D:vertex_positions"]) == [0.0, 0.2]  # every 2nd of the 3 states
     assert main(["view", str(scene.result_path), "--save", str(tmp_path / "r.txt")]) == 2
     assert "name it r.rrd" in capsys.readouterr().err
     with pytest.raises(MocapgraphError, match="already exists"):

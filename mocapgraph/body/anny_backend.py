@@ -315,7 +315,7 @@ class AnnyBody(BodyModel):
         root, pose = np.eye(4)[None], np.zeros((1, NUM_JOINTS - 1, 3))
         deltas = {k: torch.from_numpy(v).to(model.dtype) for k, v in self.anny_pose(root, pose).items()}
         phenotypes = {n: torch.tensor([v], dtype=model.dtype) for n, v in zip(SHAPE_NAMES, shape)}
-        with torch.no_grad():
+        with torch.no_grad(), contextlib.redirect_stdout(sys.stderr):  # warp announces its kernels on stdout
             out = {k: v.double().numpy()[0] for k, v in model(pose_parameters=deltas, phenotype_kwargs=phenotypes).items()}
         to_smpl = np.eye(4)
         to_smpl[:3, :3] = d["axes"].T  # Anny's rest frame is Z up; the bind pose stands Y up like the body frame

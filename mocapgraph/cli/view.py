@@ -26,7 +26,7 @@ def cmd_view(args) -> None:
 
     result = load_result(args.result)
     capture = result_capture(result, args.capture)
-    path = view_result(result, capture, result_body(result, args.model_path), save=args.save, video=not args.no_video, overwrite=args.overwrite)
+    path = view_result(result, capture, result_body(result, args.model_path), save=args.save, video=not args.no_video, mesh_every=args.mesh_every, overwrite=args.overwrite)
     print(f"wrote {path.resolve()} (open it with: rerun {path})" if path is not None else "opened the rerun viewer")
 
 
@@ -37,6 +37,7 @@ def add_view_parser(subparsers) -> None:
     view.add_argument("--save", type=Path, help="write a recording (.rrd) instead of opening the viewer")
     view.add_argument("--model-path", type=Path, help="SMPL/SMPL-X results: your own model file")
     view.add_argument("--no-video", action="store_true", help="leave the capture's video frames out")
+    view.add_argument("--mesh-every", type=int, default=1, help="log the mesh at every N-th body state (about 330 kB a state in a recording)")
     view.add_argument("--overwrite", action="store_true", help="replace an existing recording")
     view.set_defaults(func=cmd_view)
 

@@ -79,9 +79,10 @@ def _log_covariances(rec, rr, joints: np.ndarray, covariance: np.ndarray) -> Non
     )  # fmt: skip
 
 
-def log_result(rec, result, capture=None, body=None, video: bool = True) -> list[str]:
+def log_result(rec, result, capture=None, body=None, video: bool = True, mesh_every: int = 1) -> list[str]:
     """Log ``result`` (and what ``capture`` adds: lenses, detections, video, ground truth) into the
-    rerun recording ``rec``; ``body`` gives the mesh. Returns notes on what was left out or moved."""
+    rerun recording ``rec``; ``body`` gives the mesh, logged at every ``mesh_every``-th body state
+    (about 330 kB a state). Returns notes on what was left out or moved."""
     rr = _rerun()
     notes = []
     covariance = result.covariances.get("joints")
@@ -105,7 +106,7 @@ def log_result(rec, result, capture=None, body=None, video: bool = True) -> list
     for t, stamp in enumerate(progress_bar(result.timestamps, desc="viewer: body", unit="state")):
         rec.set_time("time", duration=float(stamp))
         _log_body(rec, rr, "world/estimate", result.joints[t], ESTIMATE_RGB)
-        if mesh is not None:
+        if mesh is not None and t % mesh_every == 0:
             vertices = mesh.vertices(mesh.bone_poses(body.forward(result.shape, result.root[t : t + 1], result.pose[t : t + 1])))[0]
             rec.log("world/estimate/mesh", rr.Mesh3D.from_fields(vertex_positions=vertices, vertex_normals=vertex_normals(vertices, mesh.faces)))
         if covariance is not None:
@@ -161,14 +162,19 @@ def _log_camera_images(rec, rr, result, capture, camera, path: str, video: bool)
             rec.log(f"{path}/video", rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg"))
 
 
-def view_result(result, capture=None, body=None, save: str | Path | None = None, video: bool = True, overwrite: bool = False) -> Path | None:
+def view_result(
+    result, capture=None, body=None, save: str | Path | None = None, video: bool = True, mesh_every: int = 1, overwrite: bool = False
+) -> Path | None:
     """Open ``result`` in the rerun viewer, or save it as a recording (``.rrd``) when ``save`` is
-    given; returns the recording's path (None when a viewer was opened)."""
+    given; returns the recording's path (None when a viewer was opened). ``video`` and
+    ``mesh_every`` as :func:`log_result` takes them."""
+    if mesh_every < 1:
+        raise MocapgraphError(f"mesh_every must be a positive number of body states, got {mesh_every}")
     rr = _rerun()
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=f"{result.pipeline}:{result.path or 'result'}")
     if save is None:
         rec.spawn()
-        notes = log_result(rec, result, capture, body, video)
+        notes = log_result(rec, result, capture, body, video, mesh_every)
         rec.flush()
         for note in notes:
             log.info("viewer: %s", note)
@@ -180,7 +186,7 @@ def view_result(result, capture=None, body=None, save: str | Path | None = None,
 
     def write(tmp: Path) -> None:
         rec.save(str(tmp))
-        notes = log_result(rec, result, capture, body, video)
+        notes = log_result(rec, result, capture, body, video, mesh_every)
         rec.flush()
         rec.disconnect()  # closes the file with its footer
         for note in notes:

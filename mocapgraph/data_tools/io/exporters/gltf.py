@@ -84,7 +84,8 @@ def continuous_quaternions(matrices: np.ndarray) -> np.ndarray:
 
 
 def add_animated_node(builder: GlbBuilder, node: dict, index: int, matrices: np.ndarray, times: int, animation: dict) -> None:
-    """Set ``node``'s translation and rotation from ``matrices (T, 4, 4)``; animate them when T > 1."""
+    """Set ``node``'s translation and rotation from ``matrices (T, 4, 4)``; animate them when T > 1
+    (``times``: the accessor of the keyframe times)."""
     quats = continuous_quaternions(matrices[:, :3, :3])
     node["translation"], node["rotation"] = matrices[0, :3, 3].tolist(), quats[0].tolist()
     if len(matrices) < 2:
