@@ -266,13 +266,19 @@ def test_trc_and_csv_of_a_joints_only_result_keep_missing_joints_empty(tmp_path,
 # ---- SMPL / AMASS .npz: posed again with the SMPL backend ------------------------------------
 
 
-def test_smpl_npz_round_trip(tmp_path):
+@pytest.fixture(scope="module")
+def smpl(tmp_path_factory):
+    """The SMPL backend on a random model file in the distributed layout, and its arrays."""
     from test_smpl_backend import SMPL_JOINTS, SMPL_PARENTS, SMPL_VERTICES, make_model_arrays
 
     arrays = make_model_arrays(6890, SMPL_JOINTS, SMPL_PARENTS, SMPL_VERTICES, seed=4)
-    model_file = tmp_path / "SMPL_NEUTRAL.npz"
+    model_file = tmp_path_factory.mktemp("smpl") / "SMPL_NEUTRAL.npz"
     np.savez(model_file, **arrays)
-    smpl = load_body_model("smpl", model_file)
+    return load_body_model("smpl", model_file), arrays
+
+
+def test_smpl_npz_round_trip(tmp_path, smpl):
+    smpl, arrays = smpl
     result = body_result(smpl)
     data = np.load(export_result(result, "smpl", tmp_path / "motion.npz", body=smpl))
     assert data["poses"].shape == (6, 72) and str(data["gender"]) == "neutral" and float(data["mocap_framerate"]) == pytest.approx(25.0)
@@ -284,6 +290,19 @@ def test_smpl_npz_round_trip(tmp_path):
     root[:, :3, 3] = data["trans"] + J[0]
     joints = smpl.forward(data["betas"], root, data["pose_body"].reshape(6, 21, 3)).joints
     np.testing.assert_allclose(joints, result.joints, atol=1e-9)
+
+
+def test_gltf_of_an_smpl_result(tmp_path, smpl):
+    """SMPL's mesh on its 22 joints: the joints read back from the bone nodes."""
+    pygltflib = pytest.importorskip("pygltflib")
+    smpl, arrays = smpl
+    result = body_result(smpl)
+    gltf = pygltflib.GLTF2().load(str(export_result(result, "gltf", tmp_path / "smpl.glb", body=smpl)))
+    world = gltf_globals(gltf, gltf.binary_blob(), len(result.timestamps))
+    names = [n.name for n in gltf.nodes]
+    heads = np.stack([world[:, names.index(j), :3, 3] for j in JOINT_NAMES], axis=1)
+    np.testing.assert_allclose(heads @ Z_UP_FROM_Y_UP.T, result.joints, atol=2e-5)
+    assert gltf.accessors[gltf.meshes[0].primitives[0].attributes.POSITION].count == len(arrays["v_template"])
 
 
 # ---- What cannot be exported, and bad input ---------------------------------------------------

@@ -87,7 +87,7 @@ class BodyModel(ABC):
     def mesh(self, shape) -> SkinnedMesh:
         """The skinned mesh for ``shape`` (see :mod:`mocapgraph.body.mesh`); a backend without one
         raises a MocapgraphError."""
-        raise MocapgraphError(f"the {self.name} body model has no mesh in mocapgraph (the anny backend has one)")
+        raise MocapgraphError(f"the {self.name} body model has no mesh in mocapgraph (anny has one, and SMPL from a file with its triangles)")
 
     def describe(self) -> dict:
         """What ``mocapgraph body info`` prints."""

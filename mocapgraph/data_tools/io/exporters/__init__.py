@@ -7,7 +7,7 @@ format     file    what it holds
                    MotionBuilder); needs the body parameters
 ``gltf``   .glb    glTF 2.0 binary: the skinned mesh, its bone animation and the camera tracks
                    as animated cameras (Blender, three.js, any glTF viewer); needs the body
-                   parameters and a backend with a mesh (anny)
+                   parameters and a backend with a mesh (Anny, SMPL)
 ``trc``    .trc    joints and keypoints as markers, metres, Y up as Pose2Sim writes them
                    (OpenSim, Pose2Sim); joints-only results too
 ``csv``    .csv    joints per frame, world frame, metres; joints-only results too
@@ -96,6 +96,8 @@ def export_result(result, fmt: str, out: str | Path, *, body: BodyModel | None =
     if fmt not in FORMATS:
         raise ExportError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
     out = Path(out)
+    if out.is_dir():
+        raise ExportError(f"{out}: is a directory; give the file to write")
     if out.suffix.lower() != FORMATS[fmt]:
         raise ExportError(f"{out}: a {fmt} export is a {FORMATS[fmt]} file; name it {out.with_suffix(FORMATS[fmt]).name}")
     if fmt in NEEDS_BODY:
