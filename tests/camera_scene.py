@@ -65,3 +65,14 @@ def camera_scene(root_dir: Path) -> CameraScene:
         covariances={"joints": np.tile(np.diag([1e-4, 4e-4, 9e-4]), (T, 22, 1, 1))},
     )  # fmt: skip
     return CameraScene(body, camera, capture, result, write_result(result, root_dir / "result"), world_T_camera)
+
+
+def with_video(scene: CameraScene, directory: Path, bgr=(30, 30, 200)) -> Capture:
+    """The scene's capture with a video for its camera: one plain ``bgr`` frame per camera frame."""
+    from dataclasses import replace
+
+    writer = cv2.VideoWriter(str(directory / "cam.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), scene.camera.frame_rate, IMAGE)
+    for _ in range(scene.camera.num_frames):
+        writer.write(np.full((IMAGE[1], IMAGE[0], 3), bgr, np.uint8))
+    writer.release()
+    return replace(scene.capture, cameras=[replace(scene.camera, video="cam.mp4")], path=directory)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from camera_scene import IMAGE, camera_scene, opencv_pixels
+from camera_scene import IMAGE, camera_scene, opencv_pixels, with_video
 from matplotlib.path import Path as PolygonPath
 
 from mocapgraph.data_tools.evaluation.overlay import (
@@ -99,6 +99,17 @@ def test_overlay_video_reads_back(scene, tmp_path):
         write_overlay(result, capture, "other", tmp_path / "other.mp4", body=body)
     with pytest.raises(MocapgraphError, match="name it cam.mp4"):
         write_overlay(result, capture, "cam", tmp_path / "cam.avi", body=body)
+
+
+def test_overlay_draws_over_the_cameras_video(scene, tmp_path):
+    capture = with_video(scene, tmp_path)
+    path = write_overlay(scene.result, capture, "cam", tmp_path / "over.mp4", body=scene.body)
+    ok, image = cv2.VideoCapture(str(path)).read()
+    assert ok
+    corner = image[:20, :20].reshape(-1, 3).mean(axis=0)  # no body there: the video's own colour
+    np.testing.assert_allclose(corner, (30, 30, 200), atol=12)
+    middle = opencv_pixels(scene.result.joints[0, 3:4], scene.world_T_camera, scene.camera.K, scene.camera.distortion)[0]
+    assert np.abs(image[int(middle[1]), int(middle[0])].astype(float) - (30, 30, 200)).max() > 40  # the body drawn over it
 
 
 def test_overlay_command(scene, tmp_path, capsys):

@@ -3,9 +3,10 @@ against the result, OpenCV's projection and the ground truth (float32 in the rec
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
-from camera_scene import camera_scene, opencv_pixels
+from camera_scene import camera_scene, opencv_pixels, with_video
 
 from mocapgraph.errors import MocapgraphError
 
@@ -35,7 +36,7 @@ def recording(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("viewer")
     scene = camera_scene(root)
-    path = view_result(scene.result, scene.capture, scene.body, save=root / "result.rrd")
+    path = view_result(scene.result, with_video(scene, root), scene.body, save=root / "result.rrd")
     return scene, read_rrd(path)
 
 
@@ -70,6 +71,13 @@ def test_cameras_detections_and_reprojections(recording):
         seen = np.array(rrd["/world/cameras/cam/detected"]["Points2D:positions"][key])
         np.testing.assert_allclose(seen, detected[np.isfinite(detected[:, 0]), :2], atol=1e-3)
     assert len(rrd["/world/trajectories/cam"]["LineStrips3D:strips"][-1.0][0]) == 3
+
+    frames = rrd["/world/cameras/cam/video"]["EncodedImage:blob"]
+    assert sorted(frames) == [round(s, 6) for s in camera.timestamps]
+    (jpeg,) = frames[0.1]  # one blob: a list of its bytes
+    image = cv2.imdecode(np.array(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
+    assert image.shape == (240, 320, 3)
+    np.testing.assert_allclose(image.reshape(-1, 3).mean(axis=0), (30, 30, 200), atol=12)
 
 
 def test_ground_truth_beside_the_estimate(recording):
