@@ -81,8 +81,9 @@ def test_demo_runs_aircap_and_smartmocap_and_draws_the_body(tmp_path, capsys):
     pygltflib = pytest.importorskip("pygltflib")
     gltf = pygltflib.GLTF2().load(str(tmp_path / "demo" / "exports" / "aircap.glb"))
     assert {f"camera {name}" for name in result.cameras} <= {n.name for n in gltf.nodes} and len(gltf.cameras) == len(result.cameras)
-    for name in result.cameras:
+    for name in [*result.cameras, "mesh"]:
         assert f'src="overlays/{name}.png"' in page
+        assert (tmp_path / "demo" / "overlays" / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
     assert f"look at it: mocapgraph view {tmp_path / 'demo' / 'result_sequence_refine'}" in out
 
 

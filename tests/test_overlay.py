@@ -14,6 +14,7 @@ from mocapgraph.data_tools.evaluation.overlay import (
     DETECTION_BGR,
     JOINT_BGR,
     draw_mesh,
+    mesh_views,
     overlay_frame,
     overlay_scene,
     rasterize,
@@ -110,6 +111,21 @@ def test_overlay_draws_over_the_cameras_video(scene, tmp_path):
     np.testing.assert_allclose(corner, (30, 30, 200), atol=12)
     middle = opencv_pixels(scene.result.joints[0, 3:4], scene.world_T_camera, scene.camera.K, scene.camera.distortion)[0]
     assert np.abs(image[int(middle[1]), int(middle[0])].astype(float) - (30, 30, 200)).max() > 40  # the body drawn over it
+
+
+def test_mesh_views_show_the_body_from_the_front_and_the_side(scene):
+    result, drawn = scene.result, overlay_scene(scene.result, scene.camera, scene.body)
+    facing = result.root[0, :3, :3] @ [0.0, 0.0, 1.0]
+    image = mesh_views(drawn.vertices(0), drawn.mesh.faces, result.joints[0], facing, size=(300, 400))
+    assert image.shape == (400, 600, 3)
+    extents = []
+    for view in (image[:, :300], image[:, 300:]):
+        rows, cols = np.nonzero(np.any(view != 235, axis=2))
+        # 85 % of the height at the body's centre; its near side is ~0.15 m closer than the 4 m, so up to ~4 % more
+        assert 0.85 <= (rows.max() - rows.min()) / 400 <= 0.89
+        assert abs((cols.min() + cols.max()) / 2 - 150) < 15  # centred
+        extents.append(cols.max() - cols.min())
+    assert extents[0] > 1.5 * extents[1]  # arms spread (T-pose at frame 0): wide from the front, narrow from the side
 
 
 def test_overlay_command(scene, tmp_path, capsys):

@@ -153,12 +153,13 @@ def run_aircap_demo(out_dir: Path, duration_s: float = 8.0, seed: int = 0) -> Pa
 
 
 def write_look_files(out_dir: Path, result_dir: Path, result, capture) -> str:
-    """One BVH and one glTF of ``result`` (in ``out_dir/exports``) and an overlay still per camera
-    (its middle frame, on a plain background with the detections, cropped to the person); the
-    report's HTML about them and the commands that show the result in the viewer and over a camera."""
+    """One BVH and one glTF of ``result`` (in ``out_dir/exports``), its mesh from the front and the
+    side, and an overlay still per camera (its middle frame, on a plain background with the
+    detections, cropped to the person); the report's HTML about them and the commands that show
+    the result in the viewer and over a camera."""
     import cv2
 
-    from mocapgraph.data_tools.evaluation.overlay import BACKGROUND_GREY, overlay_frame, overlay_scene
+    from mocapgraph.data_tools.evaluation.overlay import BACKGROUND_GREY, mesh_views, overlay_frame, overlay_scene
     from mocapgraph.data_tools.evaluation.report import look_section
     from mocapgraph.data_tools.io.exporters import export_result
     from mocapgraph.data_tools.io.files import write_file_atomically
@@ -169,7 +170,12 @@ def write_look_files(out_dir: Path, result_dir: Path, result, capture) -> str:
         "glTF binary: skinned mesh and the UAV cameras (Blender: File > Import > glTF 2.0; any glTF viewer)":
             export_result(result, "gltf", out_dir / "exports" / "aircap.glb", body=body, capture=capture, overwrite=True),
     }  # fmt: skip
-    stills = {}
+    mesh = body.mesh(result.shape)
+    t = len(result.timestamps) // 2
+    vertices = mesh.vertices(mesh.bone_poses(body.forward(result.shape, result.root[t : t + 1], result.pose[t : t + 1])))[0]
+    views = mesh_views(vertices, mesh.faces, result.joints[t], result.root[t, :3, :3] @ [0.0, 0.0, 1.0])
+    png = cv2.imencode(".png", views)[1].tobytes()
+    stills = {f"the fitted mesh at {result.timestamps[t]:.1f} s, front and left side": write_file_atomically(out_dir / "overlays" / "mesh.png", True, lambda tmp: tmp.write_bytes(png))}
     for camera in capture.cameras:
         if camera.name not in result.cameras:
             continue

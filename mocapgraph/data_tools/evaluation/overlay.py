@@ -140,6 +140,42 @@ def draw_detections(image: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
     return out
 
 
+def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """``(4, 4)`` world_T_camera of an OpenCV camera at ``eye`` looking at ``target``, world ``up`` up in the image."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+    pose[:3, 3] = eye
+    return pose
+
+
+def mesh_views(vertices: np.ndarray, faces: np.ndarray, joints: np.ndarray, facing: np.ndarray, size: tuple[int, int] = (360, 480)) -> np.ndarray:
+    """The posed mesh from the front and from its left side, side by side: ``(H, 2W, 3)`` BGR uint8.
+
+    Args:
+        vertices: ``(V, 3)`` world metres (Z up); ``joints (22, 3)`` drawn over it.
+        facing: ``(3,)`` the body's forward direction in the world (its horizontal part is used).
+        size: ``(width, height)`` of each view; the body fills 85 % of the height, seen from 4 m.
+    """
+    width, height = size
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    tall = np.ptp(vertices[:, 2])
+    distance = 4.0
+    f = 0.85 * height * distance / max(tall, 1e-6)
+    K = np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
+    front = np.array([facing[0], facing[1], 0.0]) / max(np.hypot(facing[0], facing[1]), 1e-9)
+    left = np.cross([0.0, 0.0, 1.0], front)
+    views = []
+    for direction in (front, left):
+        pose = look_at(centre + distance * direction, centre)
+        image = np.full((height, width, 3), 235, np.uint8)
+        image = draw_mesh(image, vertices, faces, pose, K, None, alpha=1.0)
+        views.append(draw_skeleton(image, project_points(joints, pose, K)[0]))
+    return np.concatenate(views, axis=1)
+
+
 def nearest_frames(times: np.ndarray, reference: np.ndarray, tolerance: float) -> np.ndarray:
     """``(len(times),)`` index of the nearest ``reference`` time to each of ``times``, -1 when it is farther than ``tolerance``."""
     if len(reference) == 0:
