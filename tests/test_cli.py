@@ -74,6 +74,7 @@ def test_demo_runs_aircap_and_smartmocap_and_draws_the_body(tmp_path, capsys):
     from test_exports import Z_UP_FROM_Y_UP, read_bvh
 
     page = report.read_text()
+    assert page.count("<img ") == page.count('<img src="data:image/')  # one self-contained file
     assert 'href="exports/aircap.bvh"' in page and 'href="exports/aircap.glb"' in page and "mocapgraph view " in page
     result = load_result(tmp_path / "demo" / "result_sequence_refine")
     positions, _ = read_bvh((tmp_path / "demo" / "exports" / "aircap.bvh").read_text())
@@ -82,8 +83,9 @@ def test_demo_runs_aircap_and_smartmocap_and_draws_the_body(tmp_path, capsys):
     gltf = pygltflib.GLTF2().load(str(tmp_path / "demo" / "exports" / "aircap.glb"))
     assert {f"camera {name}" for name in result.cameras} <= {n.name for n in gltf.nodes} and len(gltf.cameras) == len(result.cameras)
     for name in [*result.cameras, "mesh"]:
-        assert f'src="overlays/{name}.png"' in page
+        assert f'data-file="overlays/{name}.png"' in page
         assert (tmp_path / "demo" / "overlays" / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+    assert (tmp_path / "demo" / "overlays" / "mesh.gif").read_bytes()[:6] == b"GIF89a" and 'data-file="overlays/mesh.gif"' in page
     assert f"look at it: mocapgraph view {tmp_path / 'demo' / 'result_sequence_refine'}" in out
 
 

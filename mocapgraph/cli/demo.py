@@ -154,10 +154,11 @@ def run_aircap_demo(out_dir: Path, duration_s: float = 8.0, seed: int = 0) -> Pa
 
 def write_look_files(out_dir: Path, result_dir: Path, result, capture) -> str:
     """One BVH and one glTF of ``result`` (in ``out_dir/exports``), its mesh from the front and the
-    side, and an overlay still per camera (its middle frame, on a plain background with the
+    side (a still and a short GIF), and an overlay still per camera (its middle frame, on a plain background with the
     detections, cropped to the person); the report's HTML about them and the commands that show
     the result in the viewer and over a camera."""
     import cv2
+    from PIL import Image
 
     from mocapgraph.data_tools.evaluation.overlay import BACKGROUND_GREY, mesh_views, overlay_frame, overlay_scene
     from mocapgraph.data_tools.evaluation.report import look_section
@@ -171,11 +172,22 @@ def write_look_files(out_dir: Path, result_dir: Path, result, capture) -> str:
             export_result(result, "gltf", out_dir / "exports" / "aircap.glb", body=body, capture=capture, overwrite=True),
     }  # fmt: skip
     mesh = body.mesh(result.shape)
-    t = len(result.timestamps) // 2
-    vertices = mesh.vertices(mesh.bone_poses(body.forward(result.shape, result.root[t : t + 1], result.pose[t : t + 1])))[0]
-    views = mesh_views(vertices, mesh.faces, result.joints[t], result.root[t, :3, :3] @ [0.0, 0.0, 1.0])
-    png = cv2.imencode(".png", views)[1].tobytes()
-    stills = {f"the fitted mesh at {result.timestamps[t]:.1f} s, front and left side": write_file_atomically(out_dir / "overlays" / "mesh.png", True, lambda tmp: tmp.write_bytes(png))}
+
+    def views(t: int, size: tuple[int, int]) -> np.ndarray:
+        vertices = mesh.vertices(mesh.bone_poses(body.forward(result.shape, result.root[t : t + 1], result.pose[t : t + 1])))[0]
+        return mesh_views(vertices, mesh.faces, result.joints[t], result.root[t, :3, :3] @ [0.0, 0.0, 1.0], size)
+
+    middle = len(result.timestamps) // 2
+    png = cv2.imencode(".png", views(middle, (360, 480)))[1].tobytes()
+    stills = {f"the fitted mesh at {result.timestamps[middle]:.1f} s, front and left side": write_file_atomically(out_dir / "overlays" / "mesh.png", True, lambda tmp: tmp.write_bytes(png))}
+    # A short animation: up to 2 s from the middle state at 10 frames per second.
+    step = max(1, int(round(0.1 / np.median(np.diff(result.timestamps))))) if len(result.timestamps) > 1 else 1
+    frames = [Image.fromarray(cv2.cvtColor(views(t, (180, 240)), cv2.COLOR_BGR2RGB)) for t in range(middle, min(len(result.timestamps), middle + 20 * step), step)]
+    gif = write_file_atomically(
+        out_dir / "overlays" / "mesh.gif", True,
+        lambda tmp: frames[0].save(tmp, format="GIF", save_all=True, append_images=frames[1:], duration=100, loop=0),
+    )  # fmt: skip
+    stills[f"the fitted mesh from {result.timestamps[middle]:.1f} s, {len(frames)} states at 10 per second"] = gif
     for camera in capture.cameras:
         if camera.name not in result.cameras:
             continue

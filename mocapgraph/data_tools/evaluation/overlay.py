@@ -118,16 +118,17 @@ def draw_mesh(image: np.ndarray, vertices: np.ndarray, faces: np.ndarray, world_
     return out
 
 
-def draw_skeleton(image: np.ndarray, joint_pixels: np.ndarray) -> np.ndarray:
-    """``image`` with the 22 joints ``(22, 2)`` pixels drawn: bones as lines, joints as dots (NaN: skipped)."""
+def draw_skeleton(image: np.ndarray, joint_pixels: np.ndarray, radius: int = 4) -> np.ndarray:
+    """``image`` with the 22 joints ``(22, 2)`` pixels drawn: bones as lines, joints as dots of
+    ``radius`` pixels (NaN: skipped)."""
     out = image.copy()
     ok = np.all(np.isfinite(joint_pixels), axis=1) & np.all(np.abs(joint_pixels) < 1e6, axis=1)
     ij = np.round(np.where(ok[:, None], joint_pixels, 0)).astype(int)
     for c, p in enumerate(PARENTS):
         if p >= 0 and ok[c] and ok[p]:
-            cv2.line(out, tuple(ij[p]), tuple(ij[c]), SKELETON_BGR, 2, cv2.LINE_AA)
+            cv2.line(out, tuple(ij[p]), tuple(ij[c]), SKELETON_BGR, max(1, radius // 2), cv2.LINE_AA)
     for j in np.flatnonzero(ok):
-        cv2.circle(out, tuple(ij[j]), 4, JOINT_BGR, -1, cv2.LINE_AA)
+        cv2.circle(out, tuple(ij[j]), radius, JOINT_BGR, -1, cv2.LINE_AA)
     return out
 
 
@@ -172,7 +173,7 @@ def mesh_views(vertices: np.ndarray, faces: np.ndarray, joints: np.ndarray, faci
         pose = look_at(centre + distance * direction, centre)
         image = np.full((height, width, 3), 235, np.uint8)
         image = draw_mesh(image, vertices, faces, pose, K, None, alpha=1.0)
-        views.append(draw_skeleton(image, project_points(joints, pose, K)[0]))
+        views.append(draw_skeleton(image, project_points(joints, pose, K)[0], radius=max(2, height // 160)))
     return np.concatenate(views, axis=1)
 
 
