@@ -21,7 +21,7 @@ import numpy as np
 from mocapgraph.body.mesh import SkinnedMesh
 from mocapgraph.body.skeleton import PARENTS
 from mocapgraph.data_tools.geometry.camera_model import MIN_DEPTH_M, project_points
-from mocapgraph.data_tools.io.files import write_file_atomically
+from mocapgraph.data_tools.io.files import refuse_existing, write_file_atomically
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.progress import progress_bar
 
@@ -291,6 +291,7 @@ def write_overlay(result, capture, camera_name: str, out: str | Path, *, body=No
     out = Path(out)
     if out.suffix.lower() != ".mp4":
         raise MocapgraphError(f"{out}: the overlay is an MP4 video; name it {out.with_suffix('.mp4').name}")
+    refuse_existing(out, overwrite)  # before building the mesh, not after
     camera = capture.camera(camera_name)
     scene = overlay_scene(result, camera, body)
     frames = camera.num_frames if max_frames is None else min(camera.num_frames, max_frames)
