@@ -12,6 +12,7 @@ from test_capture import make_capture
 
 from mocapgraph.cli.main import main
 from mocapgraph.data_tools.io.capture import write_capture
+from mocapgraph.data_tools.io.result import load_result
 
 
 def test_body_info_lists_joints_keypoints_and_shape(capsys):
@@ -69,6 +70,23 @@ def test_demo_runs_aircap_and_smartmocap_and_draws_the_body(tmp_path, capsys):
     png = tmp_path / "demo" / "body_poses.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     assert not list((tmp_path / "demo").glob("*.tmp*"))
+    # The exports it links load back: the BVH's joints are the result's, the glTF opens in pygltflib.
+    from test_exports import Z_UP_FROM_Y_UP, read_bvh
+
+    page = report.read_text()
+    assert page.count("<img ") == page.count('<img src="data:image/')  # one self-contained file
+    assert 'href="exports/aircap.bvh"' in page and 'href="exports/aircap.glb"' in page and "mocapgraph view " in page
+    result = load_result(tmp_path / "demo" / "result_sequence_refine")
+    positions, _ = read_bvh((tmp_path / "demo" / "exports" / "aircap.bvh").read_text())
+    np.testing.assert_allclose(positions["pelvis"] @ Z_UP_FROM_Y_UP.T, result.joints[:, 0], atol=1e-5)
+    pygltflib = pytest.importorskip("pygltflib")
+    gltf = pygltflib.GLTF2().load(str(tmp_path / "demo" / "exports" / "aircap.glb"))
+    assert {f"camera {name}" for name in result.cameras} <= {n.name for n in gltf.nodes} and len(gltf.cameras) == len(result.cameras)
+    for name in [*result.cameras, "mesh"]:
+        assert f'data-file="overlays/{name}.png"' in page
+        assert (tmp_path / "demo" / "overlays" / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+    assert (tmp_path / "demo" / "overlays" / "mesh.gif").read_bytes()[:6] == b"GIF89a" and 'data-file="overlays/mesh.gif"' in page
+    assert f"look at it: mocapgraph view {tmp_path / 'demo' / 'result_sequence_refine'}" in out
 
 
 def test_capture_info_says_what_the_loader_repaired(tmp_path, capsys):
@@ -89,7 +107,8 @@ def test_capture_info_says_what_the_loader_repaired(tmp_path, capsys):
 @pytest.mark.parametrize(
     "args",
     [["--help"], ["body", "--help"], ["body", "info", "--help"], ["bench", "body", "--help"], ["bench", "aircap", "--help"],
-     ["run", "aircap", "--help"], ["synth", "--help"], ["eval", "--help"], ["demo", "--help"]],
+     ["run", "aircap", "--help"], ["synth", "--help"], ["eval", "--help"], ["demo", "--help"], ["export", "--help"], ["overlay", "--help"],
+     ["view", "--help"]],
 )  # fmt: skip
 def test_every_subcommand_has_help(args):
     proc = subprocess.run([sys.executable, "-m", "mocapgraph.cli.main", *args], capture_output=True, text=True)

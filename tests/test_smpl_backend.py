@@ -226,8 +226,8 @@ def required_only(arrays: dict) -> dict:
 # Independent reference: classic SMPL linear blend skinning over all joints
 
 
-def reference_lbs(arrays, beta, root, pose, vertex_ids):
-    """Posed joints (22, 3) and body keypoints (23, 3) by plain SMPL LBS, without pose correctives."""
+def reference_posed(arrays, beta, root, pose):
+    """Posed joints (22, 3) and vertices (V, 3) by plain SMPL LBS over all joints, without pose correctives."""
     S = len(beta)
     v = arrays["v_template"] + np.asarray(arrays["shapedirs"][:, :, :S], dtype=float) @ beta
     J = arrays["J_regressor"] @ v
@@ -247,8 +247,12 @@ def reference_lbs(arrays, beta, root, pose, vertex_ids):
     per_vertex = np.einsum("vc,cxy->vxy", arrays["weights"], skin)
     posed = np.einsum("vxy,vy->vx", per_vertex[:, :3, :3], v) + per_vertex[:, :3, 3]
     shift = root[:3, 3] - J[0]  # our root translation is the pelvis position
-    joints = world[:NUM_JOINTS, :3, 3] + shift
-    posed += shift
+    return world[:NUM_JOINTS, :3, 3] + shift, posed + shift
+
+
+def reference_lbs(arrays, beta, root, pose, vertex_ids):
+    """Posed joints (22, 3) and body keypoints (23, 3) by plain SMPL LBS (:func:`reference_posed`)."""
+    joints, posed = reference_posed(arrays, beta, root, pose)
     keypoints = np.array(
         [
             joints[JOINT_NAMES.index(k)] if k in JOINT_NAMES else posed[vertex_ids[k]]

@@ -23,9 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapgraph.body.anny_export import EXPORT_FORMAT
+from mocapgraph.body.anny_export import EXPORT_FORMAT, SMPL_TO_ANNY
+from mocapgraph.body.mesh import SkinnedMesh
 from mocapgraph.body.model import BodyModel
-from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, NUM_JOINTS, PARENTS
+from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
 from mocapgraph.body.table import BodyTable
 from mocapgraph.errors import MocapgraphError
 
@@ -297,6 +298,56 @@ class AnnyBody(BodyModel):
             for bone in SMPL_TO_ANNY[name]:
                 out[bone] = Dj
         return out
+
+
+    def mesh(self, shape) -> SkinnedMesh:
+        """Anny's mesh (13,718 vertices) and its 104-bone rig for ``shape``, from one forward pass
+        of the anny package (it needs torch and anny; the first model build takes about a minute).
+
+        The bind pose is Anny's rest pose turned into SMPL axes; each bone moves with the joint
+        that owns it, the toe bones with the foot about their own heads (see ``mesh``'s docstring).
+        """
+        import torch
+
+        shape = self.check_shape(shape)
+        d = self._data
+        model = _anny_model()
+        root, pose = np.eye(4)[None], np.zeros((1, NUM_JOINTS - 1, 3))
+        deltas = {k: torch.from_numpy(v).to(model.dtype) for k, v in self.anny_pose(root, pose).items()}
+        phenotypes = {n: torch.tensor([v], dtype=model.dtype) for n, v in zip(SHAPE_NAMES, shape)}
+        with torch.no_grad(), contextlib.redirect_stdout(sys.stderr):  # warp announces its kernels on stdout
+            out = {k: v.double().numpy()[0] for k, v in model(pose_parameters=deltas, phenotype_kwargs=phenotypes).items()}
+        to_smpl = np.eye(4)
+        to_smpl[:3, :3] = d["axes"].T  # Anny's rest frame is Z up; the bind pose stands Y up like the body frame
+        neutral = self.rest_joints(shape)
+        owner, toe_root = d["bone_owner"], d["toe_root"]
+        labels = [str(b) for b in d["bone_labels"]]
+        toe = toe_root >= 0
+        heads = out["bone_poses"][:, :3, 3]
+        return SkinnedMesh(
+            bind_vertices=out["rest_vertices"] @ d["axes"],
+            faces=model.faces.numpy().astype(np.int64),
+            bone_names=tuple(labels),
+            bone_parents=d["bone_parents"].astype(np.int64),
+            bind_poses=to_smpl @ out["rest_bone_poses"],
+            neutral_poses=out["bone_poses"],
+            skin_indices=model.vertex_bone_indices.numpy().astype(np.int64),
+            skin_weights=model.vertex_bone_weights.double().numpy(),
+            bone_driver=owner.astype(np.int64),
+            bone_anchor=np.where(toe, PARENTS[owner], owner).astype(np.int64),
+            bone_pivot=np.where(toe[:, None], heads[np.maximum(toe_root, 0)], neutral[owner]),
+            neutral_joints=neutral,
+            joint_bones=tuple(tuple(labels.index(b) for b in SMPL_TO_ANNY[n]) for n in JOINT_NAMES),
+        )
+
+
+@lru_cache(maxsize=1)
+def _anny_model():
+    """The anny package's model (float64), built once per process; warp's banners go to stderr."""
+    from mocapgraph.body.anny_export import load_anny_model
+
+    with contextlib.redirect_stdout(sys.stderr):
+        return load_anny_model()
 
 
 @lru_cache(maxsize=None)

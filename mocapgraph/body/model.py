@@ -7,6 +7,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from mocapgraph.body.kinematics import FKResult
+from mocapgraph.body.mesh import SkinnedMesh
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
 from mocapgraph.body.table import BodyTable
 from mocapgraph.errors import MocapgraphError, as_checked_array
@@ -82,6 +83,11 @@ class BodyModel(ABC):
         """``(22, 3)`` joints in the neutral pose, body frame, pelvis at the origin."""
         res = self.forward(shape, np.eye(4)[None], np.zeros((1, NUM_JOINTS - 1, 3)))
         return res.joints[0]
+
+    def mesh(self, shape) -> SkinnedMesh:
+        """The skinned mesh for ``shape`` (see :mod:`mocapgraph.body.mesh`); a backend without one
+        raises a MocapgraphError."""
+        raise MocapgraphError(f"the {self.name} body model has no mesh in mocapgraph (anny has one, and SMPL from a file with its triangles)")
 
     def describe(self) -> dict:
         """What ``mocapgraph body info`` prints."""

@@ -10,7 +10,7 @@ table form needs:
   the identity part of ``shapedirs`` is used (the first 300 components in SMPL-X ≥ 1.1 files,
   the first 10 in the older 20-component files); the expression components are ignored.
 * Pose correctives (``posedirs``) are ignored: posed points are plain linear blend skinning of
-  the shaped rest mesh. Faces are not read.
+  the shaped rest mesh. The triangles ``f`` are read when the file has them, for :meth:`SMPLBody.mesh`.
 
 Everything is linear in β, so offsets and markers are affine in β and their derivatives are
 constants::
@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapgraph.body.mesh import SkinnedMesh
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
 from mocapgraph.body.table import BodyTable
@@ -75,6 +76,7 @@ SMPLX_SHAPE_SPACE = 300
 SMPLX_LEGACY_SHAPE_SPACE = 10
 
 REQUIRED_FIELDS = ("v_template", "shapedirs", "J_regressor", "weights", "kintree_table")
+OPTIONAL_FIELDS = ("f",)
 
 
 # --------------------------------------------------------------------------------------------
@@ -259,7 +261,7 @@ def _read_npz(path: Path, where: str) -> dict:
         ) from None
     content = {}
     with archive:
-        for field in REQUIRED_FIELDS:
+        for field in REQUIRED_FIELDS + OPTIONAL_FIELDS:
             if field not in archive.files:
                 continue
             try:
@@ -420,6 +422,14 @@ class SMPLBody(BodyModel):
         # Rest joints of the 22 driven joints, affine in β (frozen joints' positions cancel out).
         joints0 = regressor[:NUM_JOINTS] @ v_template  # (22, 3)
         d_joints = np.einsum("jv,vxs->jxs", regressor[:NUM_JOINTS], shapedirs)  # (22, 3, S)
+        self._pelvis0, self._d_pelvis = joints0[0], d_joints[0]
+        self._v_template, self._shapedirs, self._regressor = v_template, shapedirs, regressor[:NUM_JOINTS]
+        self._faces = None
+        if "f" in content:
+            faces = self._field(content, "f")
+            if faces.ndim != 2 or faces.shape[1] != 3 or not np.all((faces >= 0) & (faces < V) & (faces == np.round(faces))):
+                raise MocapgraphError(f"{name('f')}: expected (F, 3) vertex indices below {V}, got shape {faces.shape}")
+            self._faces = faces.astype(np.int64)
         child = np.arange(1, NUM_JOINTS)
         self._offsets0 = np.zeros((NUM_JOINTS, 3))
         self._d_offsets = np.zeros((NUM_JOINTS, 3, S))
@@ -432,6 +442,7 @@ class SMPLBody(BodyModel):
         self._d_markers = np.zeros((K, NUM_JOINTS, 3, S))
         fold = np.zeros((J, NUM_JOINTS))
         fold[np.arange(J), drivers] = 1.0
+        self._skin = weights @ fold  # (V, 22): frozen joints' weights on their driven ancestor
         vertex_ids = KEYPOINT_VERTICES[kind]
         self.keypoint_vertices = dict(vertex_ids)
         for k, kp in enumerate(BODY_KEYPOINT_NAMES):
@@ -491,6 +502,11 @@ class SMPLBody(BodyModel):
     def default_shape(self) -> np.ndarray:
         return np.zeros(self.num_betas)
 
+    def rest_pelvis(self, shape) -> np.ndarray:
+        """``(3,)`` the pelvis joint of the unposed model in the model file's own frame: SMPL's
+        ``transl`` is our root translation minus this (SMPL turns the root about it)."""
+        return self._pelvis0 + self._d_pelvis @ self.check_shape(shape)
+
     def _table(self, shape: np.ndarray) -> BodyTable:
         return BodyTable(
             parents=PARENTS.copy(),
@@ -502,6 +518,26 @@ class SMPLBody(BodyModel):
             keypoint_names=BODY_KEYPOINT_NAMES,
             mapped=np.ones(len(BODY_KEYPOINT_NAMES), dtype=bool),
         )
+
+    def mesh(self, shape) -> SkinnedMesh:
+        """The shaped mesh skinned to the 22 joints (frozen joints folded in, no pose correctives);
+        bind and neutral pose are both SMPL's rest T-pose, pelvis at the origin."""
+        shape = self.check_shape(shape)
+        if self._faces is None:
+            raise MocapgraphError(f"{self._where}: has no triangles (field 'f'), so no mesh")
+        vertices = self._v_template + self._shapedirs @ shape
+        joints = self._regressor @ vertices
+        vertices, joints = vertices - joints[0], joints - joints[0]
+        poses = np.tile(np.eye(4), (NUM_JOINTS, 1, 1))
+        poses[:, :3, 3] = joints
+        width = int(np.max(np.sum(self._skin > 0, axis=1)))
+        order = np.argsort(-self._skin, axis=1, kind="stable")[:, :width]
+        return SkinnedMesh(
+            bind_vertices=vertices, faces=self._faces, bone_names=JOINT_NAMES, bone_parents=PARENTS.copy(),
+            bind_poses=poses, neutral_poses=poses, skin_indices=order, skin_weights=np.take_along_axis(self._skin, order, axis=1),
+            bone_driver=np.arange(NUM_JOINTS), bone_anchor=np.maximum(PARENTS, 0), bone_pivot=joints, neutral_joints=joints,
+            joint_bones=tuple((c,) for c in range(NUM_JOINTS)),
+        )  # fmt: skip
 
     def describe(self) -> dict:
         info = super().describe()

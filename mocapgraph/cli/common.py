@@ -47,6 +47,33 @@ def body_from(args):
     return load_body_model(args.backend, args.model_path)
 
 
+def result_capture(result, given: Path | None, required: bool = False):
+    """The capture a result came from: ``given``, else the one the result names. When that one
+    cannot be read, None with a warning (what needs it is left out), or its error if ``required``."""
+    import logging
+
+    from mocapgraph.data_tools.io.capture import load_capture
+    from mocapgraph.errors import MocapgraphError
+
+    if given is not None or required:
+        return load_capture(given if given is not None else result.capture)
+    try:
+        return load_capture(result.capture)
+    except MocapgraphError as exc:
+        logging.getLogger(__name__).warning("the result's capture is not readable (%s); pass --capture to use it", exc)
+        return None
+
+
+def result_body(result, model_path: Path | None):
+    """The body model a result was solved with, when it can be had: Anny's always, SMPL's from
+    ``model_path``; None for a joints-only result or an SMPL result without its model file."""
+    from mocapgraph.body import load_body_model
+
+    if not result.has_body_parameters or (result.body_model != "anny" and model_path is None):
+        return None
+    return load_body_model(result.body_model, model_path)
+
+
 def detector_list(text: str) -> tuple[str, ...]:
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     if not names:

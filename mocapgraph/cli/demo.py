@@ -139,15 +139,74 @@ def run_aircap_demo(out_dir: Path, duration_s: float = 8.0, seed: int = 0) -> Pa
         "per-frame, cameras refined": AircapOptions(mode="per-frame", cameras="refine", covariances=False),
         "sequence, cameras at GPS/IMU": AircapOptions(mode="sequence", cameras="prior", covariances=False),
     }
-    results, evaluations = {}, {}
+    results, evaluations, paths = {}, {}, {}
     for label, options in variants.items():
         result = run_aircap(capture, options, capture_label=str(out_dir / "capture"))
-        write_result(result, out_dir / ("result_" + label.split(",")[0].replace("-", "_") + "_" + options.cameras), overwrite=True)
+        paths[label] = write_result(result, out_dir / ("result_" + label.split(",")[0].replace("-", "_") + "_" + options.cameras), overwrite=True)
         results[label], evaluations[label] = result, evaluate(result, capture)
         m = evaluations[label].metrics
         print(f"  {label:30s} MPJPE {100 * m['mpjpe_m']:5.1f} cm  RA-MPJPE {100 * m['ra_mpjpe_m']:4.1f} cm  "
               f"camera error {100 * m.get('mcpe_m', float('nan')):5.1f} cm  ({result.parameters['seconds']:.1f} s)")
-    return write_report(out_dir, "mocapgraph demo: AirCap on a synthetic capture", capture, results, evaluations)
+    label = next(iter(results))
+    look = write_look_files(out_dir, paths[label], results[label], capture)
+    return write_report(out_dir, "mocapgraph demo: AirCap on a synthetic capture", capture, results, evaluations, extra=look)
+
+
+def write_look_files(out_dir: Path, result_dir: Path, result, capture) -> str:
+    """One BVH and one glTF of ``result`` (in ``out_dir/exports``), its mesh from the front and the
+    side (a still and a short GIF), and an overlay still per camera (its middle frame, on a plain background with the
+    detections, cropped to the person); the report's HTML about them and the commands that show
+    the result in the viewer and over a camera."""
+    import cv2
+    from PIL import Image
+
+    from mocapgraph.data_tools.evaluation.overlay import BACKGROUND_GREY, mesh_views, overlay_frame, overlay_scene
+    from mocapgraph.data_tools.evaluation.report import look_section
+    from mocapgraph.data_tools.io.exporters import export_result
+    from mocapgraph.data_tools.io.files import write_file_atomically
+
+    body = load_body_model(result.body_model)
+    files = {
+        "BVH (Blender: File > Import > Motion Capture, default settings)": export_result(result, "bvh", out_dir / "exports" / "aircap.bvh", body=body, overwrite=True),
+        "glTF binary: skinned mesh and the UAV cameras (Blender: File > Import > glTF 2.0; any glTF viewer)":
+            export_result(result, "gltf", out_dir / "exports" / "aircap.glb", body=body, capture=capture, overwrite=True),
+    }  # fmt: skip
+    mesh = body.mesh(result.shape)
+
+    def views(t: int, size: tuple[int, int]) -> np.ndarray:
+        vertices = mesh.vertices(mesh.bone_poses(body.forward(result.shape, result.root[t : t + 1], result.pose[t : t + 1])))[0]
+        return mesh_views(vertices, mesh.faces, result.joints[t], result.root[t, :3, :3] @ [0.0, 0.0, 1.0], size)
+
+    middle = len(result.timestamps) // 2
+    png = cv2.imencode(".png", views(middle, (360, 480)))[1].tobytes()
+    stills = {f"the fitted mesh at {result.timestamps[middle]:.1f} s, front and left side": write_file_atomically(out_dir / "overlays" / "mesh.png", True, lambda tmp: tmp.write_bytes(png))}
+    # A short animation: up to 2 s from the middle state at 10 frames per second.
+    step = max(1, int(round(0.1 / np.median(np.diff(result.timestamps))))) if len(result.timestamps) > 1 else 1
+    frames = [Image.fromarray(cv2.cvtColor(views(t, (180, 240)), cv2.COLOR_BGR2RGB)) for t in range(middle, min(len(result.timestamps), middle + 20 * step), step)]
+    gif = write_file_atomically(
+        out_dir / "overlays" / "mesh.gif", True,
+        lambda tmp: frames[0].save(tmp, format="GIF", save_all=True, append_images=frames[1:], duration=100, loop=0),
+    )  # fmt: skip
+    stills[f"the fitted mesh from {result.timestamps[middle]:.1f} s, {len(frames)} states at 10 per second"] = gif
+    for camera in capture.cameras:
+        if camera.name not in result.cameras:
+            continue
+        scene = overlay_scene(result, camera, body)
+        frames = np.flatnonzero(scene.state >= 0)
+        frame = int(frames[len(frames) // 2])
+        width, height = camera.image_size
+        image = overlay_frame(np.full((height, width, 3), BACKGROUND_GREY, np.uint8), scene, frame, camera)
+        rows, cols = np.nonzero(np.any(image != BACKGROUND_GREY, axis=2))
+        if len(rows):  # the person is small in a UAV's view: crop to what was drawn, with a margin
+            margin = max(40, (rows.max() - rows.min()) // 2)
+            image = image[max(rows.min() - margin, 0) : rows.max() + margin, max(cols.min() - margin, 0) : cols.max() + margin]
+        png = cv2.imencode(".png", image)[1].tobytes()
+        stills[f"{camera.name}, frame {frame}"] = write_file_atomically(out_dir / "overlays" / f"{camera.name}.png", True, lambda tmp: tmp.write_bytes(png))
+    first = next(iter(result.cameras))
+    commands = [f"mocapgraph view {result_dir}", f"mocapgraph overlay {result_dir} --camera {first} --out {out_dir / 'overlay.mp4'}"]
+    print(f"wrote {', '.join(str(p) for p in files.values())}")
+    print(f"look at it: {commands[0]}")
+    return look_section(out_dir, files, stills, commands)
 
 
 def run_smartmocap_demo(out_dir: Path, duration_s: float = 6.0, seed: int = 0) -> Path:

@@ -1,4 +1,5 @@
-"""Evaluation reports: a metrics table and the thesis' figures, as a small HTML page with PNGs.
+"""Evaluation reports: a metrics table and the thesis' figures, as one self-contained HTML page
+(the PNGs embedded, and written beside it).
 
 Figures: the estimated root trajectory against ground truth, one panel per axis; the joint
 error per frame over the number of detections per frame (as a grey background), as AirCap's
@@ -8,7 +9,9 @@ trajectory in 3D. Results are drawn after the alignment ``eval`` uses for their 
 
 from __future__ import annotations
 
+import base64
 import html
+import os
 from pathlib import Path
 
 import numpy as np
@@ -145,10 +148,35 @@ def plot_camera_trajectories(results: dict[str, Result], capture: Capture, path:
     return path
 
 
+def embedded_image(path: Path, alt: str, out_dir: Path, style: str = "") -> str:
+    """An ``<img>`` carrying the PNG or GIF at ``path`` as a data URI, so that the report is one
+    self-contained file; ``data-file`` names the file beside it (relative to ``out_dir``)."""
+    kind = "gif" if path.suffix.lower() == ".gif" else "png"
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    rel = html.escape(Path(os.path.relpath(path, out_dir)).as_posix())
+    extra = f' style="{style}"' if style else ""
+    return f'<img src="data:image/{kind};base64,{data}" alt="{html.escape(alt)}" data-file="{rel}"{extra}>'
+
+
+def look_section(out_dir: Path, files: dict[str, Path], stills: dict[str, Path], commands: list[str]) -> str:
+    """HTML of a report's "look at it and take it elsewhere" part: links to ``files`` (label →
+    path), the ``stills`` (caption → PNG) and shell ``commands`` to run; paths relative to ``out_dir``."""
+
+    def rel(path: Path) -> str:
+        return html.escape(Path(os.path.relpath(path, out_dir)).as_posix())
+
+    links = "".join(f'<li><a href="{rel(p)}">{html.escape(label)}</a> (<code>{rel(p)}</code>)</li>' for label, p in files.items())
+    images = "".join(f"<figure>{embedded_image(p, c, out_dir, 'max-width:45%')}<figcaption>{html.escape(c)}</figcaption></figure>" for c, p in stills.items())
+    lines = "".join(f"<pre>{html.escape(c)}</pre>" for c in commands)
+    return f"<h2>Look at it and take it elsewhere</h2><ul>{links}</ul>{lines}{images}"
+
+
 def write_report(
-    out_dir: Path, title: str, capture: Capture, results: dict[str, Result], evaluations: dict[str, Evaluation]
+    out_dir: Path, title: str, capture: Capture, results: dict[str, Result], evaluations: dict[str, Evaluation], extra: str = ""
 ) -> Path:
-    """``report.html`` with a metrics table (one row per result) and the figures."""
+    """``report.html`` with a metrics table (one row per result) and the figures (embedded: the page
+    is one self-contained file; the PNGs stay beside it); ``extra`` is HTML appended at the end
+    (e.g. :func:`look_section`)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for ev in evaluations.values() for k in ev.metrics if "." not in k))
     rows = []
@@ -163,7 +191,7 @@ def write_report(
     cameras = ""
     if any(res.cameras for res in results.values()):
         plot_camera_trajectories(moved, capture, out_dir / "camera_trajectories.png")
-        cameras = '<h2>Camera trajectories (after alignment)</h2><img src="camera_trajectories.png" alt="estimated and true camera trajectories">'
+        cameras = "<h2>Camera trajectories (after alignment)</h2>" + embedded_image(out_dir / "camera_trajectories.png", "estimated and true camera trajectories", out_dir)
 
     page = f"""<!doctype html>
 <html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
@@ -175,9 +203,10 @@ td,th{{border:1px solid #ccc;padding:4px 8px;text-align:right}}</style></head><b
 <table><tr><th>variant</th>{header}<th>alignment</th></tr>
 {"".join(rows)}
 </table>
-<h2>Root trajectory</h2><img src="root_trajectory.png" alt="root trajectory per axis">
-<h2>Error per frame</h2><img src="error_per_frame.png" alt="MPJPE per frame with detections">
+<h2>Root trajectory</h2>{embedded_image(out_dir / "root_trajectory.png", "root trajectory per axis", out_dir)}
+<h2>Error per frame</h2>{embedded_image(out_dir / "error_per_frame.png", "MPJPE per frame with detections", out_dir)}
 {cameras}
+{extra}
 </body></html>
 """
     path = out_dir / "report.html"

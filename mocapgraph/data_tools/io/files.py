@@ -193,3 +193,27 @@ def write_directory_atomically(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return path
+
+
+def write_file_atomically(
+    path: Path, overwrite: bool, write: Callable[[Path], None], error: type[MocapgraphError] = MocapgraphError
+) -> Path:
+    """Run ``write(tmp)`` into a temporary sibling of ``path`` (same suffix), then rename it over ``path``.
+
+    On any failure the temporary file is removed and whatever was at ``path`` stays.
+    """
+    path = Path(path)
+    refuse_existing(path, overwrite, error)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; the export is an ordinary file
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
