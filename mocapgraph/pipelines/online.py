@@ -96,6 +96,10 @@ class OnlineOptions:
     # near the onboard estimate drifted with the body's whole-body relabellings
     cameras: str = "prior"
     detector: str | None = None  # default: each camera's first detector
+    # An uncalibrated rig's static cameras after the bootstrap: held at its estimate, or variables
+    # all along ("refine": every update then re-eliminates them with the whole window, measured
+    # 3-4x slower on rich; docs/online.md).
+    static_cameras: str = "hold"
     relinearisation: Relinearisation = field(default_factory=Relinearisation)
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
@@ -112,6 +116,8 @@ class OnlineOptions:
         self.relinearisation.check()
         if self.rig is not None and self.rig not in RIGS:
             raise MocapgraphError(f"rig {self.rig!r}: choose one of {', '.join(RIGS)}")
+        if self.static_cameras not in ("hold", "refine"):
+            raise MocapgraphError(f"static_cameras {self.static_cameras!r}: choose hold or refine")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
         for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s"):
@@ -448,6 +454,9 @@ class OnlineFusion:
             if c in self._fixed:
                 continue
             if not self.rig.cameras[c].moving and self.kind == "smartmocap":
+                if o.static_cameras == "hold":
+                    self._fixed[c] = track.world_T_camera[0]
+                    continue
                 self._static_keys[c] = camera_key(c, 0)
             self._seed_cameras[c] = {float(t): T for t, T in zip(track.timestamps, track.world_T_camera)}
         if self.kind == "smartmocap":
@@ -562,7 +571,6 @@ class OnlineFusion:
         frames = self._frames[c]
         if t in frames:
             return frames[t]
-        cam = self.rig.cameras[c]
         if c in self._fixed:
             frames[t] = _Frame(None, self._fixed[c], t)
             return frames[t]
