@@ -68,10 +68,11 @@ from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_velocity_factor, root_smoothness_factor
-from mocapgraph.graphs.body_graph import GraphOptions, swap_hypotheses
+from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
 from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation
 from mocapgraph.graphs.navigation import OnlineNoise, online_track
 from mocapgraph.graphs.state_model import Estimate, undistorted_keypoints
+from mocapgraph.priors.gmm_factor import pose_gmm_factor
 
 log = logging.getLogger(__name__)
 
@@ -109,11 +110,19 @@ class OnlineOptions:
     camera_prior_kernel: str = "huber"
     online_noise: OnlineNoise = field(default_factory=OnlineNoise)
     bootstrap_motion_prior: str = "none"
-    graph: GraphOptions = field(default_factory=lambda: GraphOptions(pose_prior="none", joint_sigma_m_s=None, moving_body_swaps=True))
+    # The pose GMM and joint-rotation smoothness of 3 rad/s (offline: 6) keep iSAM2's undamped
+    # Gauss-Newton out of the directions keypoints barely see (collars, shoulder twist): without
+    # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
+    # MPJPE 137 -> 31 mm, filtered 233 -> 32 mm; docs/online.md).
+    graph: GraphOptions = field(
+        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=True)
+    )
 
     def check(self) -> None:
         self.graph.check()
         self.relinearisation.check()
+        if self.graph.pose_prior == "vae":
+            raise MocapgraphError("graph.pose_prior 'vae': not available online (its latents span the whole sequence); choose gmm or none")
         if self.rig is not None and self.rig not in RIGS:
             raise MocapgraphError(f"rig {self.rig!r}: choose one of {', '.join(RIGS)}")
         if self.static_cameras not in ("hold", "refine"):
@@ -281,6 +290,7 @@ class OnlineFusion:
         self.shape: np.ndarray | None = None
         self.world_frame = "capture" if self.kind == "aircap" else "ground_plane"
         self.smoother = FixedLagSmoother(options.lag_s, options.relinearisation)
+        self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
         self._caches: dict[str, ShapeTableCache] = {}
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
         self._buffer: list[StreamFrame] = []
@@ -471,7 +481,7 @@ class OnlineFusion:
         buffered, self._buffer = self._buffer, []
         for frame in buffered:
             i, a = self._grid(frame.timestamp)
-            self.open = i if self.open is None else max(self.open, i)
+            self.open = self._interval(i, a) if self.open is None else max(self.open, self._interval(i, a))
             self._add_observation(self.index[frame.camera], frame, i, a)
         self._flush()
 
@@ -483,6 +493,14 @@ class OnlineFusion:
         a = position - i
         return i, (0.0 if a < _SNAP else a)
 
+    @staticmethod
+    def _interval(i: int, a: float) -> int:
+        """The grid interval ``(t_j, t_{j+1}]`` an observation at grid position ``i + a`` belongs
+        to: one exactly at a state's time closes the interval that ends there, so the update
+        creating that state already uses it (synchronised cameras would otherwise leave every
+        new state without its own observations until the next update)."""
+        return i if a else i - 1
+
     def _observe(self, c: int, frame: StreamFrame) -> bool:
         """One observation into the open interval (closing it first when the observation is
         later); returns whether a smoother update ran."""
@@ -490,18 +508,19 @@ class OnlineFusion:
         if i < 0:
             self.stats.late_dropped += 1
             return False
+        interval = self._interval(i, a)
         updated = False
-        if self.open is not None and i < self.open:
+        if self.open is not None and interval < self.open:
             needed = [i, i + 1] if a else [i]
             if not all(self.smoother.holds(root_key(k)) or self._pending_values.exists(root_key(k)) for k in needed):
                 self.stats.late_dropped += 1
                 return False
             self.stats.late_used += 1
-        elif self.open is None or i > self.open:
+        elif self.open is None or interval > self.open:
             if self.open is not None:
                 self._flush()
                 updated = True
-            self.open = i
+            self.open = interval
         self._add_observation(c, frame, i, a)
         return updated
 
@@ -693,6 +712,8 @@ class OnlineFusion:
             t = self.t0 + k * self.period
             self._pending_stamps[root_key(k)] = self._pending_stamps[pose_key(k)] = t
             self._pending.add(pose_regularizer_factor(pose_key(k), o.graph.pose_prior_sigma_rad))
+            if self._pose_gmm is not None:
+                self._pending.add(pose_gmm_factor(pose_key(k), self._pose_gmm))
             if k == 0 and self._gauge is not None:
                 from mocapgraph.pipelines.smartmocap import SmartmocapOptions, gauge_factor
 
