@@ -33,16 +33,26 @@ class Relinearisation:
     """iSAM2's relinearisation policy.
 
     Attributes:
+        enabled: False: iSAM2 never relinearises; each factor stays linearised where its
+            variables started (their prediction, for a new state), the Gauss-Newton step from
+            there is the estimate.
         threshold: a variable is relinearised when its delta exceeds this (tangent norm units:
             radians and metres mixed, as iSAM2 compares them).
         skip: relinearisation is considered every ``skip`` updates (1: at every update).
         extra_updates: iSAM2 passes without new factors after each update (each re-solves with
             the relinearisation check; 0: one pass, the smoother's default).
+        per_type: thresholds by key character (e.g. ``(("q", 0.3), ("r", 0.05))``) replacing
+            ``threshold`` for the variables of that type (iSAM2 compares each tangent component).
+        partial_check: iSAM2 checks only the cliques the update touches for relinearisation
+            (cheaper; deltas deep in the tree wait until an update reaches them).
     """
 
+    enabled: bool = True
     threshold: float = 0.1
     skip: int = 10
     extra_updates: int = 0
+    per_type: tuple[tuple[str, float], ...] = ()
+    partial_check: bool = False
 
     def check(self) -> None:
         if not (np.isfinite(self.threshold) and self.threshold > 0):
@@ -51,6 +61,26 @@ class Relinearisation:
             raise MocapgraphError(f"relinearisation.skip: a whole number of updates >= 1, got {self.skip!r}")
         if not (isinstance(self.extra_updates, int) and 0 <= self.extra_updates <= 5):
             raise MocapgraphError(f"relinearisation.extra_updates: a whole number in [0, 5], got {self.extra_updates!r}")
+        for entry in self.per_type:
+            if not (len(entry) == 2 and isinstance(entry[0], str) and len(entry[0]) == 1 and np.isfinite(entry[1]) and entry[1] > 0):
+                raise MocapgraphError(f"relinearisation.per_type: (key character, threshold > 0) pairs, got {entry!r}")
+
+    def params(self, dims: dict[str, int]) -> gtsam.ISAM2Params:
+        """iSAM2's parameters; ``dims`` gives each key character's tangent dimension (with
+        ``per_type``, iSAM2 looks every variable's type up, so every type in the graph must be listed)."""
+        params = gtsam.ISAM2Params()
+        if self.per_type:
+            thresholds = gtsam.ISAM2ThresholdMap()
+            given = dict(self.per_type)
+            for char, dim in dims.items():
+                thresholds.insert((char, np.full(dim, given.get(char, self.threshold))))
+            params.setRelinearizeThreshold(thresholds)
+        else:
+            params.setRelinearizeThreshold(self.threshold)
+        params.relinearizeSkip = self.skip
+        params.enablePartialRelinearizationCheck = self.partial_check
+        params.enableRelinearization = self.enabled
+        return params
 
 
 @dataclass
@@ -60,6 +90,8 @@ class UpdateReport:
     Attributes:
         seconds: wall time of the iSAM2 update(s).
         relinearised: variables iSAM2 relinearised in the first pass.
+        batch: whether iSAM2's first pass fell back to a batch step (re-ordered and relinearised
+            every factor in the window: more than 65 % of its variables were affected).
         marginalised: keys that left the window (their last estimates are in ``left``).
         left: the estimates of the ``marginalised`` keys from before this update (the smoother
             no longer holds them after it; a key added and marginalised by the same update at its
@@ -68,12 +100,14 @@ class UpdateReport:
 
     seconds: float
     relinearised: int
+    batch: bool
     marginalised: list[int]
     left: gtsam.Values
 
 
 class FixedLagSmoother:
-    """An ``IncrementalFixedLagSmoother`` of ``lag_s`` seconds with the ``relinearisation`` policy.
+    """An ``IncrementalFixedLagSmoother`` of ``lag_s`` seconds with the ``relinearisation`` policy;
+    ``dims``: the tangent dimension of each key character the graph uses (for ``per_type``).
 
     Attributes:
         lag_s: the window, seconds.
@@ -81,13 +115,11 @@ class FixedLagSmoother:
         timestamps: key → the timestamp the window keeps it by.
     """
 
-    def __init__(self, lag_s: float, relinearisation: Relinearisation = Relinearisation()):
+    def __init__(self, lag_s: float, relinearisation: Relinearisation = Relinearisation(), dims: dict[str, int] | None = None):
         if not (np.isfinite(lag_s) and lag_s > 0):
             raise MocapgraphError(f"lag_s: a finite number of seconds > 0, got {lag_s!r}")
         relinearisation.check()
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(relinearisation.threshold)
-        params.relinearizeSkip = relinearisation.skip
+        params = relinearisation.params(dims or {})
         # Marginalised factors leave empty slots behind; re-using them keeps the factor graph's
         # size bounded by the window rather than by the stream.
         params.findUnusedFactorSlots = True
@@ -120,6 +152,8 @@ class FixedLagSmoother:
         left.insert(_subset(values, [k for k, t in stamps.items() if t < bound and not self.estimate.exists(k)]))
         start = time.perf_counter()
         self.smoother.update(factors, values, stamps)
+        first = self.smoother.getISAM2Result()
+        relinearised, batch = int(first.getVariablesRelinearized()), bool(first.getBatchReorderTriggered())
         for _ in range(self.relinearisation.extra_updates):
             self.smoother.update()
         seconds = time.perf_counter() - start
@@ -131,8 +165,7 @@ class FixedLagSmoother:
         for k in gone:
             del self.timestamps[k]
         self.estimate = self.smoother.calculateEstimate()
-        relinearised = int(self.smoother.getISAM2Result().getVariablesRelinearized())
-        return UpdateReport(seconds, relinearised, gone, left)
+        return UpdateReport(seconds, relinearised, batch, gone, left)
 
     def marginal_covariance(self, key: int) -> np.ndarray:
         """The marginal covariance of ``key`` in the window, in its tangent space."""

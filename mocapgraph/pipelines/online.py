@@ -59,6 +59,7 @@ from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.data_tools.geometry.camera_model import project_points
+from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.data_tools.io.capture import Camera, Capture, Detector
 from mocapgraph.data_tools.io.result import CameraTrack, Result, options_parameters
 from mocapgraph.errors import MocapgraphError
@@ -70,6 +71,7 @@ from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_velocity_factor, root_smoothness_factor
 from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
 from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation
+from mocapgraph.graphs.initialisation import resect
 from mocapgraph.graphs.navigation import OnlineNoise, online_track
 from mocapgraph.graphs.state_model import Estimate, undistorted_keypoints
 from mocapgraph.priors.gmm_factor import pose_gmm_factor
@@ -101,7 +103,9 @@ class OnlineOptions:
     # all along ("refine": every update then re-eliminates them with the whole window, measured
     # 3-4x slower on rich; docs/online.md).
     static_cameras: str = "hold"
-    relinearisation: Relinearisation = field(default_factory=Relinearisation)
+    # No relinearisation: with the pose GMM and the re-acquisition it changed no error measured
+    # (rich, aircap, a person out of view) and was the p95 (docs/online.md)
+    relinearisation: Relinearisation = field(default_factory=lambda: Relinearisation(enabled=False))
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
     gate_reacquire: int = 10
@@ -161,6 +165,7 @@ class OnlineStats:
     latencies: list[float] = field(default_factory=list)  # of the update() calls that ran a smoother update
     solve_seconds: list[float] = field(default_factory=list)  # of the smoother updates alone
     relinearised: list[int] = field(default_factory=list)
+    batches: int = 0  # smoother updates in which iSAM2 fell back to a batch step (every factor relinearised)
 
     @property
     def dropped(self) -> int:
@@ -174,7 +179,7 @@ class OnlineStats:
             "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
             "relabelled": self.relabelled, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
-            "solve_ms_p95": round(float(np.percentile(self.solve_seconds, 95)) * 1e3, 2) if self.solve_seconds else None,
+            "solve_ms_p95": round(float(np.percentile(self.solve_seconds, 95)) * 1e3, 2) if self.solve_seconds else None, "batch_steps": self.batches,
             "updates_per_s": round(len(lat) / self.busy_seconds, 1) if len(lat) else None,
             "observations_per_s": round((self.observations - self.bootstrap_observations) / self.busy_seconds, 1) if self.busy_seconds else None,
         }  # fmt: skip
@@ -289,7 +294,7 @@ class OnlineFusion:
         self.t0: float | None = None
         self.shape: np.ndarray | None = None
         self.world_frame = "capture" if self.kind == "aircap" else "ground_plane"
-        self.smoother = FixedLagSmoother(options.lag_s, options.relinearisation)
+        self.smoother = FixedLagSmoother(options.lag_s, options.relinearisation, {"r": 6, "q": 3 * (NUM_JOINTS - 1), "c": 6, "o": 6})
         self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
         self._caches: dict[str, ShapeTableCache] = {}
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
@@ -309,6 +314,8 @@ class OnlineFusion:
         self.newest = -1  # the newest state created
         self._last_observed = -1
         self._rejected = 0  # detections gated out in a row
+        # states first seen again after the track was lost: their views, to re-place the body
+        self._reacquiring: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]] = {}
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         self._pending_stamps: dict[int, float] = {}
@@ -484,6 +491,7 @@ class OnlineFusion:
             self.open = self._interval(i, a) if self.open is None else max(self.open, self._interval(i, a))
             self._add_observation(self.index[frame.camera], frame, i, a)
         self._flush()
+        self.stats.batches = 0  # the bootstrap's update is one by construction
 
     # -- the loop -------------------------------------------------------------------------------
 
@@ -571,6 +579,24 @@ class OnlineFusion:
         out[:3, :3] = root[:3, :3] @ gtsam.Rot3.Expmap(0.5 * steps * delta).matrix()
         return out, pose.copy()
 
+    def _reacquire(self, k: int, root: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """State ``k``'s start after the track was lost: the prediction moved so that its
+        keypoints sit on those the views of ``k`` triangulate (two views or more), else as predicted."""
+        views = self._reacquiring.pop(k, [])
+        fmt = views[0][3] if views else None
+        views = [v for v in views if v[3] == fmt]
+        if len(views) < 2:
+            return root, pose
+        seen = triangulate_points(np.stack([v[0] for v in views]), np.stack([v[1] for v in views]), np.stack([v[2] for v in views]))
+        predicted = self.body.forward(self.shape, root[None], pose[None], keypoints=fmt).keypoints[0]
+        both = np.isfinite(seen).all(-1) & np.isfinite(predicted).all(-1)
+        if both.sum() < self.options.gate_min_keypoints:
+            return root, pose
+        out = root.copy()
+        out[:3, 3] += np.median(seen[both] - predicted[both], axis=0)
+        log.info("online: track re-acquired at %.2f s, body moved %.2f m from its prediction", self.t0 + k * self.period, np.linalg.norm(out[:3, 3] - root[:3, 3]))
+        return out, pose
+
     def _camera_prior(self, c: int, t: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Camera ``c``'s pose and covariance at ``t`` from its vehicle's onboard estimate so far."""
         cam = self.rig.cameras[c]
@@ -584,9 +610,12 @@ class OnlineFusion:
         track = online_track(log_, cam.mount, np.array([t]), cam.name, noise=self.options.online_noise)
         return track.world_T_camera[0], track.covariance[0]
 
-    def _camera(self, c: int, t: float) -> _Frame | None:
+    def _camera(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None = None) -> _Frame | None:
         """Camera ``c``'s frame at ``t``: held, or a variable (created with its priors and
-        smoothness the first time); None when the loop cannot place the camera."""
+        smoothness the first time); None when the loop cannot place the camera. ``seen``: the
+        frame's keypoints ``(K, 3)`` (undistorted pixels, weights), their format and the grid
+        position ``(i, a)`` they are explained at, to resect a moving uncalibrated camera on the
+        body's current estimate when nothing else places it (it returned after more than the lag)."""
         frames = self._frames[c]
         if t in frames:
             return frames[t]
@@ -606,7 +635,9 @@ class OnlineFusion:
         seed = self._seed_cameras.get(c, {}).get(t)
         previous = max((f for f in frames.values() if f.time < t), key=lambda f: f.time, default=None)
         if prior is None and seed is None and previous is None:
-            return None
+            seed = self._resect(c, *seen) if seen is not None and self.rig.cameras[c].moving else None
+            if seed is None:
+                return None
         if prior is not None and o.cameras == "prior":
             frames[t] = _Frame(None, prior[0], t)
             return frames[t]
@@ -630,6 +661,17 @@ class OnlineFusion:
             self._pending.add(camera_smoothness_factor(previous.key, key, dt, o.graph.camera_sigma_rad_s, o.graph.camera_sigma_m_s))
         frames[t] = _Frame(key, start, t)
         return frames[t]
+
+    def _resect(self, c: int, keypoints: np.ndarray, fmt: str, i: int, a: float) -> np.ndarray | None:
+        """``(4, 4)`` world_T_camera of camera ``c`` from its keypoints and the body's current
+        estimate at grid position ``i + a`` (PnP), or None."""
+        root, pose = self._body_at(i, a)
+        points = self.body.forward(self.shape, root[None], pose[None], keypoints=fmt).keypoints[0]
+        found = resect(points, keypoints, self.rig.cameras[c].K)
+        if found is None:
+            return None
+        log.info("online: camera %r placed again at %.2f s by resection on the body (%d inliers)", self.rig.cameras[c].name, self.t0 + (i + a) * self.period, found[1])
+        return found[0]
 
     def _gate(self, c: int, pose: np.ndarray, frame: StreamFrame, pixels: np.ndarray, weights: np.ndarray, i: int, a: float) -> np.ndarray | None:
         """The weights with the keypoints outside the predicted body's region of interest at 0;
@@ -662,14 +704,21 @@ class OnlineFusion:
         if np.count_nonzero(weights) == 0:
             self.stats.empty += 1
             return
-        view = self._camera(c, frame.timestamp)
+        view = self._camera(c, frame.timestamp, (np.column_stack([pixels, weights]), fmt, i, a))
         if view is None:
             self.stats.unplaced += 1
             return
         # The bootstrap's states were solved on these very observations; and after a run of
         # rejections every camera's detections are taken again, as the tracker re-acquires a
         # lost track (the prediction, not the detections, is then what went wrong).
-        if i not in self._seed and self._rejected < self.options.gate_reacquire:
+        k = int(round(i + a))
+        lost = self._last_observed >= 0 and (k - self._last_observed) * self.period > self.options.coast_s
+        if (lost or k in self._reacquiring) and k > self.newest:
+            # the track was lost: the prediction is stale, so no gate, and the new state will
+            # start where the views triangulate the body (_reacquire)
+            cam_T_world = np.linalg.inv(view.pose)
+            self._reacquiring.setdefault(k, []).append((cam.K @ cam_T_world[:3], pixels, weights, fmt))
+        elif i not in self._seed and self._rejected < self.options.gate_reacquire:
             gated = self._gate(c, view.pose, frame, pixels, weights, i, a)
             if gated is None:
                 self.stats.gated += 1
@@ -706,7 +755,7 @@ class OnlineFusion:
         o = self.options
         created = []
         for k in range(self.newest + 1, end + 1):
-            root, pose = self._predict(k)
+            root, pose = self._reacquire(k, *self._predict(k))
             self._pending_values.insert(root_key(k), gtsam.Pose3(root))
             self._pending_values.insert(pose_key(k), pose.ravel())
             t = self.t0 + k * self.period
@@ -728,6 +777,7 @@ class OnlineFusion:
         report = self.smoother.update(self._pending, self._pending_values, self._pending_stamps, keep=keep)
         self.stats.solve_seconds.append(report.seconds)
         self.stats.relinearised.append(report.relinearised)
+        self.stats.batches += int(report.batch)
         self._pending, self._pending_values, self._pending_stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
         if self.record:
             for k, root, pose in created:
