@@ -33,9 +33,6 @@ class Relinearisation:
     """iSAM2's relinearisation policy.
 
     Attributes:
-        enabled: False: iSAM2 never relinearises; each factor stays linearised where its
-            variables started (their prediction, for a new state), the Gauss-Newton step from
-            there is the estimate.
         threshold: a variable is relinearised when its delta exceeds this (tangent norm units:
             radians and metres mixed, as iSAM2 compares them).
         skip: relinearisation is considered every ``skip`` updates (1: at every update).
@@ -45,14 +42,17 @@ class Relinearisation:
             ``threshold`` for the variables of that type (iSAM2 compares each tangent component).
         partial_check: iSAM2 checks only the cliques the update touches for relinearisation
             (cheaper; deltas deep in the tree wait until an update reaches them).
+        enabled: False: iSAM2 never relinearises; each factor stays linearised where its
+            variables started (their prediction, for a new state), the Gauss-Newton step from
+            there is the estimate.
     """
 
-    enabled: bool = True
     threshold: float = 0.1
     skip: int = 10
     extra_updates: int = 0
     per_type: tuple[tuple[str, float], ...] = ()
     partial_check: bool = False
+    enabled: bool = True
 
     def check(self) -> None:
         if not (np.isfinite(self.threshold) and self.threshold > 0):
@@ -61,6 +61,8 @@ class Relinearisation:
             raise MocapgraphError(f"relinearisation.skip: a whole number of updates >= 1, got {self.skip!r}")
         if not (isinstance(self.extra_updates, int) and 0 <= self.extra_updates <= 5):
             raise MocapgraphError(f"relinearisation.extra_updates: a whole number in [0, 5], got {self.extra_updates!r}")
+        if not isinstance(self.enabled, bool):
+            raise MocapgraphError(f"relinearisation.enabled: True or False, got {self.enabled!r}")
         for entry in self.per_type:
             if not (len(entry) == 2 and isinstance(entry[0], str) and len(entry[0]) == 1 and np.isfinite(entry[1]) and entry[1] > 0):
                 raise MocapgraphError(f"relinearisation.per_type: (key character, threshold > 0) pairs, got {entry!r}")
