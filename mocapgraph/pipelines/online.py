@@ -26,13 +26,16 @@ its body shape is then held, its states and cameras start the smoother, and the 
 observations are replayed into it. Those states are flagged ``bootstrap`` in the results: their
 starting values saw the whole bootstrap window.
 
-**The loop.** Observations are gathered per grid interval ``[t_i, t_{i+1})``; the first one of a
+**The loop.** Observations are gathered per grid interval ``(t_i, t_{i+1}]``; the first one of a
 later interval closes it: one smoother update creates the states up to ``t_{i+1}`` (each starting
 from the tracker's constant-velocity prediction, held after ``coast_s`` without observations) and
-adds the interval's factors. A detection is first gated: its keypoints outside the region of
-interest the predicted body projects to (its box widened by ``gate_margin`` of its height) lose
-their weight, and a detection left with fewer than ``gate_min_keypoints`` is dropped and counted.
-An observation later than the open interval but whose states are still in the window is used; an
+adds the interval's factors; iSAM2 does not relinearise by default (:class:`OnlineOptions`). A
+detection is first gated: its keypoints outside the region of interest the predicted body projects
+to (its box widened by ``gate_margin`` of its height) lose their weight, and a detection left with
+fewer than ``gate_min_keypoints`` is dropped and counted. After ``coast_s`` without detections the
+track is lost: the gate stays open and the next state starts where its views triangulate the body.
+A moving uncalibrated camera whose frames all left the window is resected on the body when it
+returns. An observation later than the open interval but whose states are still in the window is used; an
 older one is counted and dropped. A camera whose own clock goes back by more than the lag is a
 :class:`~mocapgraph.errors.MocapgraphError`.
 
