@@ -116,7 +116,10 @@ class OnlineOptions:
     camera_prior_white_fraction: float = 0.6
     camera_prior_kernel: str = "huber"
     online_noise: OnlineNoise = field(default_factory=OnlineNoise)
-    bootstrap_motion_prior: str = "none"
+    # The motion prior in the bootstrap's batch solve (its windows, as offline): the held shape and
+    # the first states' root orientation come out better (rich 10 s: RA-MPJPE 61 -> 41 mm, MPJPE
+    # 32 -> 27 mm) for 0.6 s more of bootstrap
+    bootstrap_motion_prior: str = "vae"
     # The pose GMM and joint-rotation smoothness of 3 rad/s (offline: 6) keep iSAM2's undamped
     # Gauss-Newton out of the directions keypoints barely see (collars, shoulder twist): without
     # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
