@@ -23,6 +23,10 @@ BENCHES = {
         "SmartMocap with realistic detector faults against none, and with swap handling off (rich, phones)",
         "mocapgraph.benchmarks.faults:bench_faults", {"workers": ("parallel chunks", {})},
     ),
+    "online": (
+        "the online loop (fixed-lag iSAM2) on aircap and rich: updates/s, latency, memory, filtered/smoothed/offline errors",
+        "mocapgraph.benchmarks.online:bench_online", {"lag_s": ("smoother window, seconds", {"flag": "--lag"})},
+    ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (
         "the shipped learned priors on held-out CMU subjects and on aircap",

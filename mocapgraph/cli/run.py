@@ -114,3 +114,52 @@ def add_parsers(subparsers) -> None:
 
     for parser in (baseline, aircap, airpose, smartmocap):
         parser.set_defaults(func=cmd_run)
+
+    from mocapgraph.pipelines.online import CAMERA_MODES as ONLINE_CAMERAS
+    from mocapgraph.pipelines.online import RIGS, OnlineOptions
+
+    online = command(
+        run, "online", "replay a capture as a stream through the fixed-lag fusion; writes the smoothed trajectory at --out and "
+        "the filtered one (each state as first estimated) at OUT/filtered",
+    )  # fmt: skip
+    _capture_args(online)
+    flags = OptionFlags(online, OnlineOptions())
+    flags.add("lag_s", "smoother window, seconds", flag="--lag")
+    flags.add("rig", "which pipeline the rig mirrors", choices=RIGS, unset="aircap when a camera has a mount, else smartmocap")
+    flags.add("bootstrap_s", "seconds buffered and solved in batch before the loop starts", flag="--bootstrap")
+    flags.add("rate_hz", "body states per second")
+    flags.add("cameras", "aircap: per-frame camera variables near the onboard estimate, or held at it", choices=ONLINE_CAMERAS)
+    flags.add("detector", "detector name", unset="each camera's first")
+    online.add_argument("--realtime", action="store_true", help="replay at the capture's own rate")
+    online.set_defaults(func=cmd_run_online)
+
+
+def cmd_run_online(args) -> None:
+    import sys
+    import time
+
+    from mocapgraph.data_tools.io.capture import load_capture
+    from mocapgraph.data_tools.io.files import refuse_existing
+    from mocapgraph.data_tools.io.result import write_result
+    from mocapgraph.pipelines.online import run_online, summary
+
+    refuse_existing(args.out, args.overwrite)
+    capture = load_capture(args.capture)
+    shown = [0.0]
+
+    def live(fusion, state) -> None:
+        now = time.perf_counter()
+        if now - shown[0] < 0.5 or not fusion.stats.latencies:
+            return
+        shown[0] = now
+        s = fusion.stats.summary()
+        lat = s["latency_ms"]
+        line = f"t {state.time:7.2f} s  {s['updates_per_s']:6.1f} updates/s  latency p50 {lat['p50']:5.1f} ms p95 {lat['p95']:5.1f} ms  dropped {fusion.stats.dropped}"
+        print(f"\r{line}", end="", file=sys.stderr, flush=True)
+
+    run = run_online(capture, args.options_from(args), capture_label=str(args.capture), realtime=args.realtime, on_update=live)
+    print(file=sys.stderr)
+    write_result(run.smoothed, args.out, overwrite=args.overwrite)
+    write_result(run.filtered, args.out / "filtered", overwrite=True)
+    print(summary(run))
+    print(f"wrote {args.out} (smoothed) and {args.out / 'filtered'} (filtered)")

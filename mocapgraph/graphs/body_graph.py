@@ -149,6 +149,12 @@ def motion_windows(n: int, stride: int = WINDOW) -> list[int]:
     return starts
 
 
+def swap_hypotheses(body: BodyModel, fmt: str) -> np.ndarray:
+    """``(H, K)`` the labelling hypotheses of format ``fmt`` (:data:`~mocapgraph.body.labelling.SWAP_KINDS` order)."""
+    names = body.keypoint_names if fmt == "body" else get_format(fmt).names
+    return np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+
+
 class BodyGraph:
     """Builds the factors of ``model`` over its states (indices ``0..N-1``).
 
@@ -292,9 +298,8 @@ class BodyGraph:
                 labelling.enabled = enabled
 
     def permutations(self, fmt: str) -> np.ndarray:
-        """``(H, K)`` the labelling hypotheses of format ``fmt`` (:data:`~mocapgraph.body.labelling.SWAP_KINDS` order)."""
-        names = self.body.keypoint_names if fmt == "body" else get_format(fmt).names
-        return np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+        """``(H, K)`` the labelling hypotheses of format ``fmt`` (:func:`swap_hypotheses`)."""
+        return swap_hypotheses(self.body, fmt)
 
     def relabelled(self, estimate: Estimate) -> dict[int, np.ndarray]:
         """Per camera, ``(F_c,)`` int8 the labelling its detections take at ``estimate``: the index into :data:`~mocapgraph.body.labelling.SWAP_KINDS` (0 as

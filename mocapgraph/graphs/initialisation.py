@@ -236,7 +236,7 @@ def moving_cameras_from_static(
         for t in range(N):
             best = None
             for code, perm in enumerate(perms):
-                found = _resect(points[t], keypoints[c][t, perm], Ks[c])
+                found = resect(points[t], keypoints[c][t, perm], Ks[c])
                 if found is not None and (best is None or _clearly_better(found, best[1:], relabel=code > 0)):
                     best = (code, *found)
                 if found is not None and code == 0:
@@ -251,7 +251,7 @@ def moving_cameras_from_static(
             if len(window) and np.isfinite(as_detected[t]).all():
                 centre = np.median(window, axis=0)
                 if np.linalg.norm(poses[t, :3, 3] - centre) >= np.linalg.norm(as_detected[t] - centre):
-                    codes[t], poses[t] = 0, _resect(points[t], keypoints[c][t], Ks[c])[0]
+                    codes[t], poses[t] = 0, resect(points[t], keypoints[c][t], Ks[c])[0]
         if placed.sum() >= 2:
             placed[placed] = _temporal_inliers(poses[placed, :3, 3])
             out[c], ok[c] = _fill_gaps(poses, placed), placed
@@ -276,9 +276,10 @@ def _clearly_better(found: tuple, best: tuple, relabel: bool) -> bool:
     return found[1] > best[1] or (found[1] == best[1] and -found[2] < RELABEL_ERROR_RATIO * -best[2])
 
 
-def _resect(points: np.ndarray, keypoints: np.ndarray, K: np.ndarray):
-    """PnP of ``keypoints (17, 3)`` (pixels, confidence) on ``points (17, 3)``: None, or
-    ``(camera_T_... as ref_T_c (4, 4), inliers, -median error px)`` (larger is better)."""
+def resect(points: np.ndarray, keypoints: np.ndarray, K: np.ndarray):
+    """PnP (RANSAC, SQPnP) of ``keypoints (K, 3)`` (undistorted pixels, confidence) on ``points
+    (K, 3)`` in a frame ``ref``: None, or ``(ref_T_camera (4, 4), inliers, -median error px)``
+    (larger is better)."""
     conf = np.nan_to_num(keypoints[:, 2])
     use = (conf >= MIN_CONFIDENCE) & np.isfinite(points).all(-1) & np.isfinite(keypoints[:, :2]).all(-1)
     if use.sum() < MIN_POINTS:

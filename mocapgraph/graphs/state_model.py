@@ -253,16 +253,24 @@ class StateModel:
         return replace(self, cameras=[replace(cam, moving=bool(m)) for cam, m in zip(self.cameras, moving)])
 
 
+def undistorted_keypoints(keypoints: np.ndarray, K: np.ndarray, distortion, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(..., K, 2)`` pixels of the ideal pinhole image and ``(..., K)`` confidences (0 where
+    missing) of detected keypoints ``(..., K, 3)`` (distorted pixels and confidences, NaN where
+    missing); ``where`` names the source in the error a negative confidence raises."""
+    pixels = keypoints[..., :2] if distortion is None else undistort_pixels(keypoints[..., :2], K, distortion)
+    weights = np.where(np.isfinite(pixels).all(-1), np.nan_to_num(keypoints[..., 2], nan=0.0), 0.0)
+    if np.any(weights < 0):
+        raise MocapgraphError(f"{where}: confidences must be >= 0")
+    return pixels, weights
+
+
 def _observations(det: CameraDetections, camera: CameraInfo) -> tuple[np.ndarray, np.ndarray]:
     """``(F, K, 2)`` undistorted pixels and ``(F, K)`` gated confidences of one detector."""
     kp = np.asarray(det.keypoints, dtype=float)
     F = len(camera.timestamps)
     if kp.ndim != 3 or kp.shape[0] != F or kp.shape[2] != 3:
         raise MocapgraphError(f"camera {camera.name!r}: detector {det.detector!r}: keypoints must be ({F}, K, 3), got {kp.shape}")
-    pixels = kp[..., :2] if det.distortion is None else undistort_pixels(kp[..., :2], camera.K, det.distortion)
-    weights = np.where(np.isfinite(pixels).all(-1), np.nan_to_num(kp[..., 2], nan=0.0), 0.0)
-    if np.any(weights < 0):
-        raise MocapgraphError(f"camera {camera.name!r}: detector {det.detector!r}: confidences must be >= 0")
+    pixels, weights = undistorted_keypoints(kp, camera.K, det.distortion, f"camera {camera.name!r}: detector {det.detector!r}")
     if det.gate is not None:
         gate = np.asarray(det.gate, dtype=float)
         weights = weights * (gate[:, None] if gate.ndim == 1 else gate)

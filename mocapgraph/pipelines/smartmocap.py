@@ -113,7 +113,7 @@ class SmartmocapOptions:
 # Graphs
 
 
-def _gauge_factor(estimate: Estimate, sigmas: tuple[float, float]) -> gtsam.PriorFactorPose3:
+def gauge_factor(estimate: Estimate, sigmas: tuple[float, float]) -> gtsam.PriorFactorPose3:
     """The first root's horizontal position and heading held stiffly, its tilt and height weakly.
 
     The root's frame has +Y up (body axes), so near upright its tangent's rotation about y is the
@@ -128,7 +128,7 @@ def sequence_graph(bg: BodyGraph, estimate: Estimate, gauge_sigmas) -> tuple[gts
     """Every SmartMocap term over the model's states (the motion prior on windows side by side
     when the model has at least one); the values at ``estimate``."""
     graph, values = bg.sequence(estimate, ground=True)
-    graph.add(_gauge_factor(estimate, gauge_sigmas))
+    graph.add(gauge_factor(estimate, gauge_sigmas))
     bg.add_motion_prior(graph, values, motion_windows(bg.model.num_states), MOTION_GROUND_SIGMAS)
     return graph, values
 

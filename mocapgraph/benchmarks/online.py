@@ -1,0 +1,78 @@
+"""``mocapgraph bench online``: the online loop on an ``aircap`` (3 UAVs) and a ``rich`` capture, one run.
+
+Per capture: updates/s (smoother updates per second spent inside ``update()`` after the
+bootstrap), latency p50/p95/max of the ``update()`` calls that ran a smoother update, resident
+memory at the start and the end of the stream, MPJPE / RA-MPJPE / MCPE of the filtered and of
+the smoothed trajectory and of the offline pipeline on the same capture (its default options).
+Also the relinearisation policies (:class:`~mocapgraph.graphs.fixed_lag.Relinearisation`) on 6 s
+of each, with the smoother updates that fell back to an iSAM2 batch step (every factor relinearised).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.sim.synthetic import synthesize
+from mocapgraph.graphs.fixed_lag import Relinearisation
+from mocapgraph.pipelines.online import OnlineOptions, run_online
+
+REPORTED = ("mpjpe_m", "ra_mpjpe_m", "mcpe_m")
+POLICIES = {
+    "off": Relinearisation(enabled=False),
+    "threshold_0.1_skip_10": Relinearisation(0.1, 10),
+    "threshold_0.1_skip_1_pose_0.3": Relinearisation(0.1, 1, per_type=(("q", 0.3),)),
+    "threshold_0.1_skip_10_extra_1": Relinearisation(0.1, 10, 1),
+}
+
+
+def _resident_mb() -> float:
+    with open("/proc/self/statm") as f:
+        pages = int(f.read().split()[1])
+    import os
+
+    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def _metrics(result, capture) -> dict:
+    m = evaluate(result, capture).metrics
+    return {k: round(m[k], 4) for k in REPORTED if k in m}
+
+
+def _online(capture, options: OnlineOptions) -> dict:
+    memory = {}
+
+    def watch(fusion, state) -> None:
+        if fusion.stats.latencies and "start_mb" not in memory:
+            memory["start_mb"] = round(_resident_mb(), 1)
+
+    run = run_online(capture, options, on_update=watch)
+    s = run.stats.summary()
+    return {
+        "updates_per_s": s["updates_per_s"], "latency_ms": s["latency_ms"], "observations_per_s": s["observations_per_s"],
+        "bootstrap_s": s["bootstrap_s"], "solve_ms_p95": s["solve_ms_p95"], "batch_steps": s["batch_steps"], "updates": s["updates"], "dropped": run.stats.dropped, "late_dropped": s["late_dropped"], "gated": s["gated"],
+        "resident_mb": {**memory, "end_mb": round(_resident_mb(), 1)},
+        "filtered": _metrics(run.filtered, capture), "smoothed": _metrics(run.smoothed, capture),
+    }  # fmt: skip
+
+
+def bench_online(duration_s: float = 20.0, seed: int = 0, lag_s: float = 1.0) -> dict:
+    from mocapgraph.pipelines.aircap import run_aircap
+    from mocapgraph.pipelines.smartmocap import run_smartmocap
+
+    out: dict = {"duration_s": duration_s, "seed": seed, "lag_s": lag_s}
+    for preset, offline in (("aircap", run_aircap), ("rich", run_smartmocap)):
+        capture = synthesize(preset, seed=seed, duration_s=duration_s)
+        entry = _online(capture, OnlineOptions(lag_s=lag_s))
+        start = time.perf_counter()
+        entry["offline"] = _metrics(offline(capture), capture)
+        entry["offline_seconds"] = round(time.perf_counter() - start, 1)
+        out[preset] = entry
+    for preset in ("aircap", "rich"):
+        capture = synthesize(preset, seed=seed, duration_s=min(duration_s, 6.0))
+        out[f"relinearisation_{preset}"] = {}
+        for name, policy in POLICIES.items():
+            r = _online(capture, replace(OnlineOptions(lag_s=lag_s), relinearisation=policy))
+            out[f"relinearisation_{preset}"][name] = {k: r[k] for k in ("updates_per_s", "latency_ms", "batch_steps", "updates", "filtered", "smoothed")}
+    return out

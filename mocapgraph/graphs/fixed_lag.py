@@ -1,0 +1,188 @@
+"""GTSAM's incremental fixed-lag smoother (iSAM2 inside), as the online loop drives it.
+
+:class:`FixedLagSmoother` wraps ``gtsam.IncrementalFixedLagSmoother``: every key carries a
+timestamp (seconds); an update marginalises the keys older than the newest timestamp minus the
+lag, so the graph, and the cost of an update, stay bounded however long the stream runs. A key
+that all times share (a static camera, a camera's GPS offset) stays in the window by being given
+the newest timestamp again at every update (:meth:`FixedLagSmoother.update`'s ``keep``).
+
+Two things the GTSAM performance notes (``notes/gtsam_performance.md`` §3) measured:
+
+- Python ``CustomFactor`` callbacks that receive a C++-owned ``Values`` copy the whole of it on
+  every call unless a Python reference to it exists: the wrapper holds
+  ``getLinearizationPoint()`` for the smoother's life.
+- The latency's p95 comes from iSAM2's relinearisation (every ``skip`` updates, all variables
+  whose delta exceeds ``threshold``): :class:`Relinearisation` sets both, and optionally a
+  second cheap iSAM2 pass per update (``extra_updates``); ``mocapgraph bench online`` measures
+  the choice (``docs/online.md``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from mocapgraph.errors import MocapgraphError
+
+
+@dataclass(frozen=True)
+class Relinearisation:
+    """iSAM2's relinearisation policy.
+
+    Attributes:
+        threshold: a variable is relinearised when its delta exceeds this (tangent norm units:
+            radians and metres mixed, as iSAM2 compares them).
+        skip: relinearisation is considered every ``skip`` updates (1: at every update).
+        extra_updates: iSAM2 passes without new factors after each update (each re-solves with
+            the relinearisation check; 0: one pass, the smoother's default).
+        per_type: thresholds by key character (e.g. ``(("q", 0.3), ("r", 0.05))``) replacing
+            ``threshold`` for the variables of that type (iSAM2 compares each tangent component).
+        partial_check: iSAM2 checks only the cliques the update touches for relinearisation
+            (cheaper; deltas deep in the tree wait until an update reaches them).
+        enabled: False: iSAM2 never relinearises; each factor stays linearised where its
+            variables started (their prediction, for a new state), the Gauss-Newton step from
+            there is the estimate.
+    """
+
+    threshold: float = 0.1
+    skip: int = 10
+    extra_updates: int = 0
+    per_type: tuple[tuple[str, float], ...] = ()
+    partial_check: bool = False
+    enabled: bool = True
+
+    def check(self) -> None:
+        if not (np.isfinite(self.threshold) and self.threshold > 0):
+            raise MocapgraphError(f"relinearisation.threshold: a finite number > 0, got {self.threshold!r}")
+        if not (isinstance(self.skip, int) and self.skip >= 1):
+            raise MocapgraphError(f"relinearisation.skip: a whole number of updates >= 1, got {self.skip!r}")
+        if not (isinstance(self.extra_updates, int) and 0 <= self.extra_updates <= 5):
+            raise MocapgraphError(f"relinearisation.extra_updates: a whole number in [0, 5], got {self.extra_updates!r}")
+        if not isinstance(self.enabled, bool):
+            raise MocapgraphError(f"relinearisation.enabled: True or False, got {self.enabled!r}")
+        for entry in self.per_type:
+            if not (len(entry) == 2 and isinstance(entry[0], str) and len(entry[0]) == 1 and np.isfinite(entry[1]) and entry[1] > 0):
+                raise MocapgraphError(f"relinearisation.per_type: (key character, threshold > 0) pairs, got {entry!r}")
+
+    def params(self, dims: dict[str, int]) -> gtsam.ISAM2Params:
+        """iSAM2's parameters; ``dims`` gives each key character's tangent dimension (with
+        ``per_type``, iSAM2 looks every variable's type up, so every type in the graph must be listed)."""
+        params = gtsam.ISAM2Params()
+        if self.per_type:
+            thresholds = gtsam.ISAM2ThresholdMap()
+            given = dict(self.per_type)
+            for char, dim in dims.items():
+                thresholds.insert((char, np.full(dim, given.get(char, self.threshold))))
+            params.setRelinearizeThreshold(thresholds)
+        else:
+            params.setRelinearizeThreshold(self.threshold)
+        params.relinearizeSkip = self.skip
+        params.enablePartialRelinearizationCheck = self.partial_check
+        params.enableRelinearization = self.enabled
+        return params
+
+
+@dataclass
+class UpdateReport:
+    """What one :meth:`FixedLagSmoother.update` did.
+
+    Attributes:
+        seconds: wall time of the iSAM2 update(s).
+        relinearised: variables iSAM2 relinearised in the first pass.
+        batch: whether iSAM2's first pass fell back to a batch step (re-ordered and relinearised
+            every factor in the window: more than 65 % of its variables were affected).
+        marginalised: keys that left the window (their last estimates are in ``left``).
+        left: the estimates of the ``marginalised`` keys from before this update (the smoother
+            no longer holds them after it; a key added and marginalised by the same update at its
+            initial value).
+    """
+
+    seconds: float
+    relinearised: int
+    batch: bool
+    marginalised: list[int]
+    left: gtsam.Values
+
+
+class FixedLagSmoother:
+    """An ``IncrementalFixedLagSmoother`` of ``lag_s`` seconds with the ``relinearisation`` policy;
+    ``dims``: the tangent dimension of each key character the graph uses (for ``per_type``).
+
+    Attributes:
+        lag_s: the window, seconds.
+        estimate: every key in the window at its current estimate (after the last update).
+        timestamps: key → the timestamp the window keeps it by.
+    """
+
+    def __init__(self, lag_s: float, relinearisation: Relinearisation = Relinearisation(), dims: dict[str, int] | None = None):
+        if not (np.isfinite(lag_s) and lag_s > 0):
+            raise MocapgraphError(f"lag_s: a finite number of seconds > 0, got {lag_s!r}")
+        relinearisation.check()
+        params = relinearisation.params(dims or {})
+        # Marginalised factors leave empty slots behind; re-using them keeps the factor graph's
+        # size bounded by the window rather than by the stream.
+        params.findUnusedFactorSlots = True
+        self.lag_s = float(lag_s)
+        self.relinearisation = relinearisation
+        self.smoother = gtsam.IncrementalFixedLagSmoother(self.lag_s, params)
+        self.estimate = gtsam.Values()
+        self.timestamps: dict[int, float] = {}
+        self._linearization_point = None  # held: see the module docstring
+
+    @property
+    def newest(self) -> float:
+        """The newest timestamp in the window (-inf before the first update)."""
+        return max(self.timestamps.values(), default=-np.inf)
+
+    def holds(self, key: int) -> bool:
+        """Whether ``key`` is in the window."""
+        return key in self.timestamps
+
+    def update(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: dict[int, float], keep: list[int] = ()) -> UpdateReport:
+        """Add ``factors`` and the new variables ``values`` (their ``timestamps``, seconds), keep
+        the keys ``keep`` in the window at the newest timestamp, and re-solve incrementally."""
+        newest = max(self.newest, max(timestamps.values(), default=-np.inf))
+        stamps = {int(k): float(t) for k, t in timestamps.items()}
+        stamps.update({int(k): newest for k in keep})
+        bound = newest - self.lag_s
+        leaving = [k for k, t in self.timestamps.items() if t < bound and k not in stamps]
+        left = _subset(self.estimate, leaving)
+        # new variables already older than the window leave in this very update, at their start
+        left.insert(_subset(values, [k for k, t in stamps.items() if t < bound and not self.estimate.exists(k)]))
+        start = time.perf_counter()
+        self.smoother.update(factors, values, stamps)
+        first = self.smoother.getISAM2Result()
+        relinearised, batch = int(first.getVariablesRelinearized()), bool(first.getBatchReorderTriggered())
+        for _ in range(self.relinearisation.extra_updates):
+            self.smoother.update()
+        seconds = time.perf_counter() - start
+        if self._linearization_point is None:
+            self._linearization_point = self.smoother.getLinearizationPoint()
+        self.timestamps.update(stamps)
+        window = set(self.smoother.timestamps().keys())
+        gone = [k for k in self.timestamps if k not in window]
+        for k in gone:
+            del self.timestamps[k]
+        self.estimate = self.smoother.calculateEstimate()
+        return UpdateReport(seconds, relinearised, batch, gone, left)
+
+    def marginal_covariance(self, key: int) -> np.ndarray:
+        """The marginal covariance of ``key`` in the window, in its tangent space."""
+        if key not in self.timestamps:
+            raise MocapgraphError(f"key {gtsam.DefaultKeyFormatter(key)} is not in the smoother's window")
+        return np.asarray(self.smoother.marginalCovariance(key))
+
+
+def _subset(values: gtsam.Values, keys: list[int]) -> gtsam.Values:
+    """A copy of ``values`` with only ``keys`` (those it has)."""
+    if not keys:
+        return gtsam.Values()
+    out = gtsam.Values(values)
+    wanted = set(keys)
+    for k in list(out.keys()):
+        if k not in wanted:
+            out.erase(k)
+    return out

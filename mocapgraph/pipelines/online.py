@@ -1,0 +1,944 @@
+"""``mocapgraph run online``: body and cameras fused as the observations arrive, one smoother
+update per body state, with a fixed lag.
+
+:class:`OnlineFusion` is made from a capture's static description (:func:`static_rig`: cameras,
+intrinsics, lenses, mounts, static calibrations, detector formats) and takes observations one at
+a time with :meth:`OnlineFusion.update` ``(camera, timestamp, keypoints, box, sensors)``,
+interleaved between cameras in time order. The graph is the offline one (:mod:`mocapgraph.graphs`):
+body states on a regular time grid, every detection explained at its own timestamp by the state
+interpolated between its two neighbours, the native reprojection factor with its left/right-swap
+max-mixture and per-keypoint Geman-McClure, root and joint-rotation smoothness, the weak pose
+regulariser, and camera variables:
+
+- **AirCap rigs** (cameras on vehicles with a mount and sensor logs): a pose per camera frame near
+  the vehicle's onboard estimate at that time (the ``self_pose`` samples received so far, through
+  :func:`~mocapgraph.graphs.navigation.online_track`), through one offset per camera that carries
+  the estimate's slow drift (as :class:`~mocapgraph.pipelines.aircap.CameraPriors`), and
+  constant-pose smoothness between its frames (``cameras="refine"``); or held at that estimate
+  (``"prior"``). A static camera with a calibration is held at it.
+- **Uncalibrated rigs** (SmartMocap): a static camera is one variable for the whole stream, a
+  moving one a pose per frame tied by smoothness; the world is SmartMocap's ground plane.
+
+**Bootstrap.** The first ``bootstrap_s`` seconds are buffered and solved in batch by the pipeline
+the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mode with the
+cameras at their onboard estimate, or :func:`~mocapgraph.pipelines.smartmocap.run_smartmocap`);
+its body shape is then held, its states and cameras start the smoother, and the buffered
+observations are replayed into it. Those states are flagged ``bootstrap`` in the results: their
+starting values saw the whole bootstrap window.
+
+**The loop.** Observations are gathered per grid interval ``(t_i, t_{i+1}]``; the first one of a
+later interval closes it: one smoother update creates the states up to ``t_{i+1}`` (each starting
+from the tracker's constant-velocity prediction, held after ``coast_s`` without observations) and
+adds the interval's factors; iSAM2 does not relinearise by default (:class:`OnlineOptions`). A
+detection is first gated: its keypoints outside the region of interest the predicted body projects
+to (its box widened by ``gate_margin`` of its height) lose their weight, and a detection left with
+fewer than ``gate_min_keypoints`` is dropped and counted. After ``coast_s`` without detections the
+track is lost: the gate stays open and the next state starts where its views triangulate the body.
+A moving uncalibrated camera whose frames all left the window is resected on the body when it
+returns. An observation later than the open interval but whose states are still in the window is used; an
+older one is counted and dropped. A camera whose own clock goes back by more than the lag is a
+:class:`~mocapgraph.errors.MocapgraphError`.
+
+**Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
+after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
+created inside a gap keeps its prediction. The *smoothed* one holds each state at its last
+estimate before it left the window (the smoother's lag). ``docs/online.md`` has the numbers.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field, replace
+from typing import Callable, Iterator
+
+import gtsam
+import numpy as np
+
+from mocapgraph.body import load_body_model
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS
+from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.data_tools.geometry.camera_model import project_points
+from mocapgraph.data_tools.geometry.triangulation import triangulate_points
+from mocapgraph.data_tools.io.capture import Camera, Capture, Detector
+from mocapgraph.data_tools.io.result import CameraTrack, Result, options_parameters
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.factors.body_priors import pose_regularizer_factor
+from mocapgraph.factors.camera_priors import camera_offset_prior_factor, camera_prior_factor
+from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key, pose_key, root_key
+from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
+from mocapgraph.factors.robust import RobustScale
+from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_velocity_factor, root_smoothness_factor
+from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
+from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation
+from mocapgraph.graphs.initialisation import resect
+from mocapgraph.graphs.navigation import OnlineNoise, online_track
+from mocapgraph.graphs.state_model import Estimate, undistorted_keypoints
+from mocapgraph.priors.gmm_factor import pose_gmm_factor
+
+log = logging.getLogger(__name__)
+
+RIGS = ("aircap", "smartmocap")
+CAMERA_MODES = ("refine", "prior")
+_SNAP = 1e-6  # a grid fraction this close to 0 or 1 is the grid state itself (as graphs.sync)
+
+
+@dataclass
+class OnlineOptions:
+    """Parameters of the online loop (units in the names).
+
+    ``rig``: ``"aircap"`` or ``"smartmocap"``; None: aircap when a camera has a mount, else
+    smartmocap. ``graph``: the terms' weights (only the per-state ones and the swaps are used).
+    """
+
+    rig: str | None = None
+    lag_s: float = 1.0
+    rate_hz: float = 30.0
+    bootstrap_s: float = 1.0
+    # "refine" measured worse than "prior" on aircap (docs/online.md): per-frame camera variables
+    # near the onboard estimate drifted with the body's whole-body relabellings
+    cameras: str = "prior"
+    detector: str | None = None  # default: each camera's first detector
+    # An uncalibrated rig's static cameras after the bootstrap: held at its estimate, or variables
+    # all along ("refine": every update then re-eliminates them with the whole window, measured
+    # 3-4x slower on rich; docs/online.md).
+    static_cameras: str = "hold"
+    # No relinearisation: with the pose GMM and the re-acquisition it changed no error measured
+    # (rich, aircap, a person out of view) and was the p95 (docs/online.md)
+    relinearisation: Relinearisation = field(default_factory=lambda: Relinearisation(enabled=False))
+    gate_margin: float = 1.0
+    gate_min_keypoints: int = 4
+    gate_reacquire: int = 10
+    coast_s: float = 0.5
+    camera_prior_white_fraction: float = 0.6
+    camera_prior_kernel: str = "huber"
+    online_noise: OnlineNoise = field(default_factory=OnlineNoise)
+    # The motion prior in the bootstrap's batch solve (its windows, as offline): the held shape and
+    # the first states' root orientation come out better (rich 10 s: RA-MPJPE 61 -> 41 mm, MPJPE
+    # 32 -> 27 mm) for 0.6 s more of bootstrap
+    bootstrap_motion_prior: str = "vae"
+    # The pose GMM and joint-rotation smoothness of 3 rad/s (offline: 6) keep iSAM2's undamped
+    # Gauss-Newton out of the directions keypoints barely see (collars, shoulder twist): without
+    # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
+    # MPJPE 137 -> 31 mm, filtered 233 -> 32 mm). No whole-body relabelling of moving cameras:
+    # decided once, at a new state's prediction, it turned the body round (aircap 10 s: 216 of
+    # 267 relabellings not in the truth, RA-MPJPE 0.19 -> 0.11 m without; docs/online.md).
+    graph: GraphOptions = field(
+        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False)
+    )
+
+    def check(self) -> None:
+        self.graph.check()
+        self.relinearisation.check()
+        if self.graph.pose_prior == "vae":
+            raise MocapgraphError("graph.pose_prior 'vae': not available online (its latents span the whole sequence); choose gmm or none")
+        if self.rig is not None and self.rig not in RIGS:
+            raise MocapgraphError(f"rig {self.rig!r}: choose one of {', '.join(RIGS)}")
+        if self.static_cameras not in ("hold", "refine"):
+            raise MocapgraphError(f"static_cameras {self.static_cameras!r}: choose hold or refine")
+        if self.cameras not in CAMERA_MODES:
+            raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
+        for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
+        if self.lag_s * self.rate_hz < 2:
+            raise MocapgraphError(f"lag_s: the window must hold at least 2 states at {self.rate_hz} Hz, got {self.lag_s} s")
+        for name in ("gate_min_keypoints", "gate_reacquire"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                raise MocapgraphError(f"{name}: a whole number >= 1, got {getattr(self, name)!r}")
+        if not 0.0 < self.camera_prior_white_fraction < 1.0:
+            raise MocapgraphError(f"camera_prior_white_fraction: must lie in (0, 1), got {self.camera_prior_white_fraction}")
+
+
+@dataclass
+class OnlineStats:
+    """Counters of a stream and the latency of every smoother update (seconds)."""
+
+    observations: int = 0
+    used: int = 0
+    late_used: int = 0
+    late_dropped: int = 0
+    gated: int = 0
+    gated_keypoints: int = 0
+    empty: int = 0
+    unplaced: int = 0
+    relabelled: int = 0
+    bootstrap_seconds: float = 0.0
+    bootstrap_observations: int = 0
+    busy_seconds: float = 0.0  # inside update() after the bootstrap
+    latencies: list[float] = field(default_factory=list)  # of the update() calls that ran a smoother update
+    solve_seconds: list[float] = field(default_factory=list)  # of the smoother updates alone
+    relinearised: list[int] = field(default_factory=list)
+    batches: int = 0  # smoother updates in which iSAM2 fell back to a batch step (every factor relinearised)
+
+    @property
+    def dropped(self) -> int:
+        """Observations not used: too late, gated out, or from a camera the loop could not place."""
+        return self.late_dropped + self.gated + self.unplaced
+
+    def summary(self) -> dict:
+        lat = np.asarray(self.latencies) * 1e3
+        return {
+            "observations": self.observations, "used": self.used, "late_used": self.late_used, "late_dropped": self.late_dropped,
+            "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
+            "relabelled": self.relabelled, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
+            "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
+            "solve_ms_p95": round(float(np.percentile(self.solve_seconds, 95)) * 1e3, 2) if self.solve_seconds else None, "batch_steps": self.batches,
+            "updates_per_s": round(len(lat) / self.busy_seconds, 1) if len(lat) else None,
+            "observations_per_s": round((self.observations - self.bootstrap_observations) / self.busy_seconds, 1) if self.busy_seconds else None,
+        }  # fmt: skip
+
+
+@dataclass
+class OnlineState:
+    """The newest body state after an update.
+
+    Attributes:
+        index, time: the state's index on the grid and its time, seconds (None during the bootstrap).
+        root: ``(4, 4)`` world_T_root; pose: ``(21, 3)`` axis-angle; shape: ``(S,)``.
+        cameras: by camera name, its newest ``(4, 4)`` world_T_camera.
+        updated: whether this call ran a smoother update.
+    """
+
+    index: int | None
+    time: float | None
+    root: np.ndarray | None = None
+    pose: np.ndarray | None = None
+    shape: np.ndarray | None = None
+    cameras: dict[str, np.ndarray] = field(default_factory=dict)
+    updated: bool = False
+
+
+def static_rig(capture: Capture) -> Capture:
+    """The capture's static description, what :class:`OnlineFusion` is made from: every camera's
+    name, intrinsics, lens, image size, frame rate, whether it moves, its mount, a static
+    camera's calibration, and its detectors' names and formats; no frames, detections or logs."""
+    cameras = []
+    for cam in capture.cameras:
+        detectors = {n: Detector(n, d.format, np.zeros((0,) + d.keypoints.shape[1:])) for n, d in cam.detectors.items()}
+        extrinsics = None if cam.moving or cam.extrinsics is None else np.asarray(cam.extrinsics).reshape(-1, 4, 4)[:1]
+        cameras.append(Camera(cam.name, cam.K, cam.distortion, cam.image_size, cam.moving, np.zeros(0), cam.frame_rate, detectors, extrinsics, cam.mount))
+    return Capture(capture.name, cameras, capture.world_frame, metadata=dict(capture.metadata))
+
+
+@dataclass
+class StreamFrame:
+    """One camera frame as a stream delivers it (the arguments of :meth:`OnlineFusion.update`)."""
+
+    camera: str
+    timestamp: float
+    keypoints: np.ndarray
+    box: np.ndarray | None
+    sensors: dict[str, dict[str, np.ndarray]]
+    detector: str
+
+
+def stream(capture: Capture, detector: str | None = None) -> Iterator[StreamFrame]:
+    """Every camera frame of ``capture`` in time order (ties in camera order), each with the sensor
+    samples its camera's vehicle logged since the camera's previous frame; ``detector`` (default
+    each camera's first) gives the keypoints and box."""
+    events = []
+    for c, cam in enumerate(capture.cameras):
+        name = detector or next(iter(cam.detectors), None)
+        if name is None or name not in cam.detectors:
+            continue
+        events += [(float(t), c, j, name) for j, t in enumerate(cam.timestamps)]
+    events.sort(key=lambda e: (e[0], e[1]))
+    sent = {c: {kind: 0 for kind in cam.sensors} for c, cam in enumerate(capture.cameras)}
+    for t, c, j, name in events:
+        cam = capture.cameras[c]
+        det = cam.detectors[name]
+        samples = {}
+        for kind, logged in cam.sensors.items():
+            stop = int(np.searchsorted(logged["t"], t, side="right"))
+            if stop > sent[c][kind]:
+                samples[kind] = {f: np.asarray(v)[sent[c][kind] : stop] for f, v in logged.items()}
+                sent[c][kind] = stop
+        box = None if det.boxes is None or not np.isfinite(det.boxes[j, :4]).all() else det.boxes[j]
+        yield StreamFrame(cam.name, t, det.keypoints[j], box, samples, name)
+
+
+@dataclass
+class _Frame:
+    """A camera frame of the stream in the window: its key (None: fixed), pose and labelling."""
+
+    key: int | None
+    pose: np.ndarray
+    time: float
+    labellings: list[Labelling] = field(default_factory=list)
+
+
+class OnlineFusion:
+    """The online loop on one rig (see the module docstring).
+
+    Args:
+        rig: the capture's static description (:func:`static_rig`; a full capture works too:
+            only its static fields are read).
+        options: :class:`OnlineOptions`.
+        record: keep the filtered and smoothed trajectories for :meth:`results` (memory grows
+            with the stream); False keeps only the window.
+
+    Attributes:
+        stats: :class:`OnlineStats`.
+    """
+
+    def __init__(self, rig: Capture, options: OnlineOptions | None = None, *, record: bool = True):
+        self.options = options = options or OnlineOptions()
+        options.check()
+        self.rig = static_rig(rig)
+        if not self.rig.cameras:
+            raise MocapgraphError(f"capture {rig.name!r}: no cameras")
+        self.kind = options.rig or ("aircap" if any(cam.mount is not None for cam in self.rig.cameras) else "smartmocap")
+        self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
+        self.body = load_body_model()
+        self.record = record
+        self.stats = OnlineStats()
+        self.scale = RobustScale(options.graph.gm_sigma_px)
+        self.period = 1.0 / options.rate_hz
+        self.t0: float | None = None
+        self.shape: np.ndarray | None = None
+        self.world_frame = "capture" if self.kind == "aircap" else "ground_plane"
+        self.smoother = FixedLagSmoother(options.lag_s, options.relinearisation, {"r": 6, "q": 3 * (NUM_JOINTS - 1), "c": 6, "o": 6})
+        self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
+        self._caches: dict[str, ShapeTableCache] = {}
+        self._last_time = np.full(len(self.rig.cameras), -np.inf)
+        self._buffer: list[StreamFrame] = []
+        self._bootstrapped = False
+        self._seed: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # state → bootstrap (root, pose)
+        self._bootstrap_states = 0
+        self._seed_cameras: dict[int, dict[float, np.ndarray]] = {}  # camera → {frame time: pose}
+        self._static_keys: dict[int, int] = {}  # uncalibrated static camera → its key
+        self._offsets: set[int] = set()
+        self._fixed: dict[int, np.ndarray] = {}  # calibrated static camera → world_T_camera
+        self._self_pose: dict[int, deque] = {c: deque() for c in range(len(self.rig.cameras))}
+        self._frames: dict[int, dict[float, _Frame]] = {c: {} for c in range(len(self.rig.cameras))}
+        self._frame_count = np.zeros(len(self.rig.cameras), dtype=int)
+        self._gauge: Estimate | None = None
+        self.open: int | None = None  # the grid interval gathering observations
+        self.newest = -1  # the newest state created
+        self._last_observed = -1
+        self._rejected = 0  # detections gated out in a row
+        # states first seen again after the track was lost: their views, to re-place the body
+        self._reacquiring: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]] = {}
+        self._pending = gtsam.NonlinearFactorGraph()
+        self._pending_values = gtsam.Values()
+        self._pending_stamps: dict[int, float] = {}
+        self._counts: dict[int, int] = {}
+        self.filtered: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.smoothed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.filtered_cameras: dict[int, dict[float, np.ndarray]] = {c: {} for c in range(len(self.rig.cameras))}
+        self.smoothed_cameras: dict[int, dict[float, np.ndarray]] = {c: {} for c in range(len(self.rig.cameras))}
+        self.swaps: dict[int, dict[float, int]] = {c: {} for c in range(len(self.rig.cameras))}
+        self.detections: dict[int, int] = {}
+        for c, cam in enumerate(self.rig.cameras):
+            if cam.extrinsics is not None and self.kind == "aircap":
+                self._fixed[c] = np.asarray(cam.extrinsics)[0]
+
+    # -- input ----------------------------------------------------------------------------------
+
+    def update(self, camera: str, timestamp: float, keypoints, box=None, sensors: dict | None = None, detector: str | None = None) -> OnlineState:
+        """Take one camera frame's detection and return the newest state.
+
+        Args:
+            camera: the camera's name.
+            timestamp: seconds, on the capture's clock.
+            keypoints: ``(K, 3)`` pixels of the distorted image and confidences, NaN where
+                missing; K points of the detector's format.
+            box: ``(4,)`` or ``(5,)`` the detector's person box ``x0, y0, x1, y1[, score]``, or None
+                (the box of the keypoints is used for the gate).
+            sensors: the camera's vehicle's log samples since its previous frame, by kind (the
+                capture format's sensor fields, e.g. ``{"self_pose": {"t", "rotation", "position"}}``).
+            detector: the detector's name (default: the options', else the camera's first).
+        """
+        start = time.perf_counter()
+        c = self.index.get(camera)
+        if c is None:
+            raise MocapgraphError(f"update: unknown camera {camera!r} (cameras: {', '.join(self.index)})")
+        cam = self.rig.cameras[c]
+        name = detector or self.options.detector or next(iter(cam.detectors), None)
+        if name not in cam.detectors:
+            raise MocapgraphError(f"update: camera {camera!r} has no detector {name!r} (detectors: {', '.join(cam.detectors) or 'none'})")
+        fmt = cam.detectors[name].format
+        K = get_format(fmt).num_points
+        kp = np.asarray(keypoints, dtype=float)
+        if kp.shape != (K, 3):
+            raise MocapgraphError(f"update: camera {camera!r}: keypoints of detector {name!r} ({fmt}) must be ({K}, 3), got {kp.shape}")
+        t = float(timestamp)
+        if not math.isfinite(t):
+            raise MocapgraphError(f"update: camera {camera!r}: timestamp must be finite, got {timestamp!r}")
+        if t < self._last_time[c] - self.options.lag_s:
+            raise MocapgraphError(
+                f"update: camera {camera!r}: timestamp {t:.3f} s goes back {self._last_time[c] - t:.3f} s, more than the lag ({self.options.lag_s} s)"
+            )
+        self._last_time[c] = max(self._last_time[c], t)
+        samples = self._take_sensors(c, sensors or {})
+        box = None if box is None else np.asarray(box, dtype=float)
+        if box is not None and (box.shape not in ((4,), (5,))):
+            raise MocapgraphError(f"update: camera {camera!r}: box must be (4,) or (5,), got {box.shape}")
+        self.stats.observations += 1
+        frame = StreamFrame(camera, t, kp, box, samples, name)
+        if self.t0 is None:
+            self.t0 = t
+        if not self._bootstrapped:
+            self._buffer.append(frame)
+            if t - self.t0 >= self.options.bootstrap_s:
+                self._bootstrap()
+                return self.state(updated=True)
+            return self.state()
+        updated = self._observe(c, frame)
+        out = self.state(updated=updated)
+        seconds = time.perf_counter() - start
+        self.stats.busy_seconds += seconds
+        if updated:
+            self.stats.latencies.append(seconds)
+        return out
+
+    def _take_sensors(self, c: int, sensors: dict) -> dict:
+        cam = self.rig.cameras[c]
+        out = {}
+        for kind, samples in sensors.items():
+            if not isinstance(samples, dict) or "t" not in samples:
+                raise MocapgraphError(f"update: camera {cam.name!r}: sensors[{kind!r}] must be a dict of arrays with a 't' field")
+            out[kind] = {f: np.asarray(v) for f, v in samples.items()}
+            if kind == "self_pose":
+                kept = self._self_pose[c]
+                for k in range(len(out[kind]["t"])):
+                    kept.append((float(out[kind]["t"][k]), out[kind]["rotation"][k], out[kind]["position"][k]))
+                # what a frame still to come may need: late frames within the lag, the bootstrap's replay
+                horizon = self.options.lag_s + self.options.bootstrap_s + 1.0
+                while kept and kept[0][0] < kept[-1][0] - horizon:
+                    kept.popleft()
+        return out
+
+    # -- bootstrap ------------------------------------------------------------------------------
+
+    def _buffered_capture(self) -> Capture:
+        """The buffered stream as a capture of the rig (its frames, detections and sensor logs)."""
+        cameras = []
+        for c, cam in enumerate(self.rig.cameras):
+            frames = [f for f in self._buffer if f.camera == cam.name]
+            times = np.array(sorted({f.timestamp for f in frames}))
+            detectors = {}
+            for name, det in cam.detectors.items():
+                kp = np.full((len(times),) + det.keypoints.shape[1:], np.nan)
+                boxes = np.full((len(times), 5), np.nan)
+                for f in frames:
+                    if f.detector == name:
+                        j = int(np.searchsorted(times, f.timestamp))
+                        kp[j] = f.keypoints
+                        if f.box is not None:
+                            boxes[j, : len(f.box)] = f.box
+                if any(f.detector == name for f in frames):
+                    detectors[name] = Detector(name, det.format, kp, boxes if np.isfinite(boxes[:, :4]).any() else None)
+            sensors: dict[str, dict[str, np.ndarray]] = {}
+            for f in frames:
+                for kind, samples in f.sensors.items():
+                    sensors.setdefault(kind, {k: [] for k in samples})
+                    for k, v in samples.items():
+                        sensors[kind][k].append(v)
+            sensors = {kind: {k: np.concatenate(v) for k, v in s.items()} for kind, s in sensors.items()}
+            sensors = {kind: s for kind, s in sensors.items() if len(s["t"])}
+            cameras.append(replace(cam, timestamps=times, detectors=detectors, sensors=sensors))
+        return replace(self.rig, cameras=[cam for cam in cameras if cam.num_frames])
+
+    def _bootstrap(self) -> None:
+        """The buffered stream solved in batch by the rig's pipeline; its states and cameras start
+        the smoother, and the buffered observations are replayed into it."""
+        from mocapgraph.pipelines.aircap import AircapOptions, resample, run_aircap
+        from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
+
+        start = time.perf_counter()
+        mini = self._buffered_capture()
+        detectors = tuple(dict.fromkeys(f.detector for f in self._buffer))
+        o = self.options
+        if self.kind == "aircap":
+            options = AircapOptions(
+                mode="sequence", cameras="fixed", sync="grid", grid_hz=o.rate_hz, detectors=detectors, covariances=False, workers=1,
+                graph=replace(o.graph, focal="fixed", shape="estimate"),
+            )  # fmt: skip
+            result = run_aircap(mini, options)
+        else:
+            options = SmartmocapOptions(
+                motion_prior=o.bootstrap_motion_prior, keypoint_offsets=False, covariances=False, workers=1, detectors=detectors,
+                graph=replace(SmartmocapOptions().graph, focal="fixed", swaps=o.graph.swaps),
+            )  # fmt: skip
+            result = run_smartmocap(mini, options)
+        self.shape = np.asarray(result.shape, dtype=float)
+        self.world_frame = result.world_frame
+        n = int(math.floor((self._buffer[-1].timestamp - self.t0) / self.period + _SNAP)) + 2
+        grid = self.t0 + self.period * np.arange(n)
+        est = resample(Estimate(result.root, result.pose, self.shape, []), np.asarray(result.timestamps), grid)
+        self._seed = {i: (est.roots[i], est.poses[i]) for i in range(n)}
+        self._bootstrap_states = n
+        for name, track in result.cameras.items():
+            c = self.index[name]
+            if c in self._fixed:
+                continue
+            if not self.rig.cameras[c].moving and self.kind == "smartmocap":
+                if o.static_cameras == "hold":
+                    self._fixed[c] = track.world_T_camera[0]
+                    continue
+                self._static_keys[c] = camera_key(c, 0)
+            self._seed_cameras[c] = {float(t): T for t, T in zip(track.timestamps, track.world_T_camera)}
+        if self.kind == "smartmocap":
+            self._gauge = Estimate(est.roots[:1], est.poses[:1], self.shape, [])
+        self._bootstrapped = True
+        self.stats.bootstrap_seconds = time.perf_counter() - start
+        self.stats.bootstrap_observations = len(self._buffer)
+        log.info("online: bootstrap of %.2f s (%d states, %s) in %.1f s", self._buffer[-1].timestamp - self.t0, n, self.kind, self.stats.bootstrap_seconds)
+        # One smoother update with every buffered observation, from the batch solution: replayed
+        # an interval at a time, the first updates saw a state or two and one or two views,
+        # and iSAM2's undamped Gauss-Newton steps threw them metres off (measured).
+        buffered, self._buffer = self._buffer, []
+        for frame in buffered:
+            i, a = self._grid(frame.timestamp)
+            self.open = self._interval(i, a) if self.open is None else max(self.open, self._interval(i, a))
+            self._add_observation(self.index[frame.camera], frame, i, a)
+        self._flush()
+        self.stats.batches = 0  # the bootstrap's update is one by construction
+
+    # -- the loop -------------------------------------------------------------------------------
+
+    def _grid(self, t: float) -> tuple[int, float]:
+        position = (t - self.t0) / self.period
+        i = int(math.floor(position + _SNAP))
+        a = position - i
+        return i, (0.0 if a < _SNAP else a)
+
+    @staticmethod
+    def _interval(i: int, a: float) -> int:
+        """The grid interval ``(t_j, t_{j+1}]`` an observation at grid position ``i + a`` belongs
+        to: one exactly at a state's time closes the interval that ends there, so the update
+        creating that state already uses it (synchronised cameras would otherwise leave every
+        new state without its own observations until the next update)."""
+        return i if a else i - 1
+
+    def _observe(self, c: int, frame: StreamFrame) -> bool:
+        """One observation into the open interval (closing it first when the observation is
+        later); returns whether a smoother update ran."""
+        i, a = self._grid(frame.timestamp)
+        if i < 0:
+            self.stats.late_dropped += 1
+            return False
+        interval = self._interval(i, a)
+        updated = False
+        if self.open is not None and interval < self.open:
+            needed = [i, i + 1] if a else [i]
+            if not all(self.smoother.holds(root_key(k)) or self._pending_values.exists(root_key(k)) for k in needed):
+                self.stats.late_dropped += 1
+                return False
+            self.stats.late_used += 1
+        elif self.open is None or interval > self.open:
+            if self.open is not None:
+                self._flush()
+                updated = True
+            self.open = interval
+        self._add_observation(c, frame, i, a)
+        return updated
+
+    def _cache(self, fmt: str) -> ShapeTableCache:
+        if fmt not in self._caches:
+            self._caches[fmt] = ShapeTableCache(self.body, fmt)
+        return self._caches[fmt]
+
+    def _body_at(self, i: int, a: float) -> tuple[np.ndarray, np.ndarray]:
+        """The body's current guess at grid position ``i + a``: states' estimates or predictions."""
+        root, pose = self._state_guess(i)
+        if a and (i + 1 <= self.newest):
+            root1, pose1 = self._state_guess(i + 1)
+            root = root.copy()
+            root[:3, 3] = (1 - a) * root[:3, 3] + a * root1[:3, 3]
+            pose = (1 - a) * pose + a * pose1
+        return root, pose
+
+    def _state_guess(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        if i > self.newest:
+            return self._predict(i)
+        key = root_key(i)
+        for values in (self.smoother.estimate, self._pending_values):
+            if values.exists(key):
+                return values.atPose3(key).matrix(), values.atVector(pose_key(i)).reshape(NUM_JOINTS - 1, 3)
+        return self._predict(i)
+
+    def _predict(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """State ``i``'s start: the bootstrap's value, else constant velocity (root position and
+        rotation) from the two newest states, held once ``coast_s`` passed without observations."""
+        if i in self._seed:
+            return self._seed[i][0], self._seed[i][1]
+        if self.newest < 0:
+            raise MocapgraphError("online: no state to predict from (the bootstrap gave none)")
+        last = min(i - 1, self.newest)
+        root, pose = self._state_guess(last)
+        steps = i - last
+        coasting = (i - self._last_observed) * self.period > self.options.coast_s
+        if last < 3 or coasting:
+            return root.copy(), pose.copy()
+        # the velocity between the second and the fourth newest states: the newest one is seen
+        # only through the interval before it, and its difference to the next is noise
+        a, _ = self._state_guess(last - 1)
+        b, _ = self._state_guess(last - 3)
+        out = root.copy()
+        out[:3, 3] = root[:3, 3] + 0.5 * steps * (a[:3, 3] - b[:3, 3])
+        delta = gtsam.Rot3.Logmap(gtsam.Rot3(b[:3, :3].T @ a[:3, :3]))
+        out[:3, :3] = root[:3, :3] @ gtsam.Rot3.Expmap(0.5 * steps * delta).matrix()
+        return out, pose.copy()
+
+    def _reacquire(self, k: int, root: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """State ``k``'s start after the track was lost: the prediction moved so that its
+        keypoints sit on those the views of ``k`` triangulate (two views or more), else as predicted."""
+        views = self._reacquiring.pop(k, [])
+        fmt = views[0][3] if views else None
+        views = [v for v in views if v[3] == fmt]
+        if len(views) < 2:
+            return root, pose
+        seen = triangulate_points(np.stack([v[0] for v in views]), np.stack([v[1] for v in views]), np.stack([v[2] for v in views]))
+        predicted = self.body.forward(self.shape, root[None], pose[None], keypoints=fmt).keypoints[0]
+        both = np.isfinite(seen).all(-1) & np.isfinite(predicted).all(-1)
+        if both.sum() < self.options.gate_min_keypoints:
+            return root, pose
+        out = root.copy()
+        out[:3, 3] += np.median(seen[both] - predicted[both], axis=0)
+        log.info("online: track re-acquired at %.2f s, body moved %.2f m from its prediction", self.t0 + k * self.period, np.linalg.norm(out[:3, 3] - root[:3, 3]))
+        return out, pose
+
+    def _camera_prior(self, c: int, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """Camera ``c``'s pose and covariance at ``t`` from its vehicle's onboard estimate so far."""
+        cam = self.rig.cameras[c]
+        samples = self._self_pose[c]
+        if cam.mount is None or not samples:
+            return None
+        times = np.fromiter((s[0] for s in samples), float, len(samples))
+        k = int(np.searchsorted(times, t))
+        near = [samples[j] for j in range(max(k - 2, 0), min(k + 2, len(samples)))]  # the neighbours online_track interpolates
+        log_ = {"self_pose": {"t": np.array([s[0] for s in near]), "rotation": np.array([s[1] for s in near]), "position": np.array([s[2] for s in near])}}
+        track = online_track(log_, cam.mount, np.array([t]), cam.name, noise=self.options.online_noise)
+        return track.world_T_camera[0], track.covariance[0]
+
+    def _camera(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None = None) -> _Frame | None:
+        """Camera ``c``'s frame at ``t``: held, or a variable (created with its priors and
+        smoothness the first time); None when the loop cannot place the camera. ``seen``: the
+        frame's keypoints ``(K, 3)`` (undistorted pixels, weights), their format and the grid
+        position ``(i, a)`` they are explained at, to resect a moving uncalibrated camera on the
+        body's current estimate when nothing else places it (it returned after more than the lag)."""
+        frames = self._frames[c]
+        if t in frames:
+            return frames[t]
+        if c in self._fixed:
+            frames[t] = _Frame(None, self._fixed[c], t)
+            return frames[t]
+        if c in self._static_keys:
+            key = self._static_keys[c]
+            if not (self.smoother.holds(key) or self._pending_values.exists(key)):
+                self._pending_values.insert(key, gtsam.Pose3(next(iter(self._seed_cameras[c].values()))))
+                self._pending_stamps[key] = t
+            values = self.smoother.estimate if self.smoother.estimate.exists(key) else self._pending_values
+            frames[t] = _Frame(key, values.atPose3(key).matrix(), t)
+            return frames[t]
+        o = self.options
+        prior = self._camera_prior(c, t) if self.kind == "aircap" else None
+        seed = self._seed_cameras.get(c, {}).get(t)
+        previous = max((f for f in frames.values() if f.time < t), key=lambda f: f.time, default=None)
+        if prior is None and seed is None and previous is None:
+            seed = self._resect(c, *seen) if seen is not None and self.rig.cameras[c].moving else None
+            if seed is None:
+                return None
+        if prior is not None and o.cameras == "prior":
+            frames[t] = _Frame(None, prior[0], t)
+            return frames[t]
+        key = camera_key(c, int(self._frame_count[c] % CAMERA_STRIDE))
+        self._frame_count[c] += 1
+        start = seed if seed is not None else prior[0] if prior is not None else previous.pose
+        self._pending_values.insert(key, gtsam.Pose3(start))
+        self._pending_stamps[key] = t
+        if prior is not None:
+            offset = camera_offset_key(c)
+            if offset not in self._offsets:
+                Ad = gtsam.Pose3(prior[0]).AdjointMap()
+                common = (1.0 - o.camera_prior_white_fraction**2) * Ad @ prior[1] @ Ad.T
+                self._pending.add(camera_prior_factor(offset, np.eye(4), common, kernel="none"))
+                self._pending_values.insert(offset, gtsam.Pose3())
+                self._pending_stamps[offset] = t
+                self._offsets.add(offset)
+            self._pending.add(camera_offset_prior_factor(offset, key, prior[0], prior[1] * o.camera_prior_white_fraction**2, kernel=o.camera_prior_kernel))
+        if previous is not None and previous.key is not None and (self.smoother.holds(previous.key) or self._pending_values.exists(previous.key)):
+            dt = max(t - previous.time, 1e-3)
+            self._pending.add(camera_smoothness_factor(previous.key, key, dt, o.graph.camera_sigma_rad_s, o.graph.camera_sigma_m_s))
+        frames[t] = _Frame(key, start, t)
+        return frames[t]
+
+    def _resect(self, c: int, keypoints: np.ndarray, fmt: str, i: int, a: float) -> np.ndarray | None:
+        """``(4, 4)`` world_T_camera of camera ``c`` from its keypoints and the body's current
+        estimate at grid position ``i + a`` (PnP), or None."""
+        root, pose = self._body_at(i, a)
+        points = self.body.forward(self.shape, root[None], pose[None], keypoints=fmt).keypoints[0]
+        found = resect(points, keypoints, self.rig.cameras[c].K)
+        if found is None:
+            return None
+        log.info("online: camera %r placed again at %.2f s by resection on the body (%d inliers)", self.rig.cameras[c].name, self.t0 + (i + a) * self.period, found[1])
+        return found[0]
+
+    def _gate(self, c: int, pose: np.ndarray, frame: StreamFrame, pixels: np.ndarray, weights: np.ndarray, i: int, a: float) -> np.ndarray | None:
+        """The weights with the keypoints outside the predicted body's region of interest at 0;
+        None when too few are left (the detection is dropped)."""
+        cam = self.rig.cameras[c]
+        root, body_pose = self._body_at(i, a)
+        joints, _ = self._cache("body").state_joints(root, body_pose.ravel(), self.shape, False)
+        px, depth = project_points(joints, pose, cam.K, None)
+        if not np.all(depth > 0.05):
+            return weights
+        lo, hi = px.min(0), px.max(0)
+        grow = self.options.gate_margin * max(hi[1] - lo[1], 1.0)
+        inside = np.all((pixels >= lo - grow) & (pixels <= hi + grow), axis=1)
+        gated = (weights > 0) & ~inside
+        self.stats.gated_keypoints += int(gated.sum())
+        out = np.where(inside, weights, 0.0)
+        if frame.box is not None:
+            box = frame.box[:4]
+            centre = 0.5 * (box[:2] + box[2:])
+            if np.any(centre < lo - grow) or np.any(centre > hi + grow):
+                return None
+        if np.count_nonzero(out) < self.options.gate_min_keypoints:
+            return None
+        return out
+
+    def _add_observation(self, c: int, frame: StreamFrame, i: int, a: float) -> None:
+        cam = self.rig.cameras[c]
+        fmt = cam.detectors[frame.detector].format
+        pixels, weights = undistorted_keypoints(frame.keypoints, cam.K, cam.distortion, f"update: camera {cam.name!r}")
+        if np.count_nonzero(weights) == 0:
+            self.stats.empty += 1
+            return
+        view = self._camera(c, frame.timestamp, (np.column_stack([pixels, weights]), fmt, i, a))
+        if view is None:
+            self.stats.unplaced += 1
+            return
+        # The bootstrap's states were solved on these very observations; and after a run of
+        # rejections every camera's detections are taken again, as the tracker re-acquires a
+        # lost track (the prediction, not the detections, is then what went wrong).
+        k = int(round(i + a))
+        lost = self._last_observed >= 0 and (k - self._last_observed) * self.period > self.options.coast_s
+        if (lost or k in self._reacquiring) and k > self.newest:
+            # the track was lost: the prediction is stale, so no gate, and the new state will
+            # start where the views triangulate the body (_reacquire)
+            cam_T_world = np.linalg.inv(view.pose)
+            self._reacquiring.setdefault(k, []).append((cam.K @ cam_T_world[:3], pixels, weights, fmt))
+        elif i not in self._seed and self._rejected < self.options.gate_reacquire:
+            gated = self._gate(c, view.pose, frame, pixels, weights, i, a)
+            if gated is None:
+                self.stats.gated += 1
+                self._rejected += 1
+                return
+            weights = gated
+        self._rejected = 0
+        o = self.options.graph
+        labelling = None
+        if o.swaps:
+            allowed = np.ones((1, len(SWAP_KINDS)), dtype=bool)
+            # a whole-body relabelling of a moving camera only where a prior pins its pose
+            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap")
+            labelling = Labelling(swap_hypotheses(self.body, fmt), 0.5 * o.swap_cost_sigmas**2, allowed=allowed)
+            view.labellings.append(labelling)
+        between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": a} if a else {}
+        self._pending.add(
+            reprojection_factor(
+                self.body, self._cache(fmt), root_key(i), pose_key(i), None, [view.key], [None if view.key is not None else view.pose],
+                np.array([[cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]]]), pixels[None], weights[None], fmt, self.scale,
+                noise_px=o.noise_px, fixed_shape=self.shape, labelling=labelling, **between,
+            )  # fmt: skip
+        )
+        self.stats.used += 1
+        self._last_observed = max(self._last_observed, i + (1 if a else 0))
+        count = int(np.count_nonzero(weights))
+        self.detections[i] = self.detections.get(i, 0) + count
+        if a:
+            self.detections[i + 1] = self.detections.get(i + 1, 0) + count
+
+    def _flush(self) -> None:
+        """Close the open interval: create the states up to its end and update the smoother."""
+        end = self.open + 1
+        o = self.options
+        created = []
+        for k in range(self.newest + 1, end + 1):
+            root, pose = self._reacquire(k, *self._predict(k))
+            self._pending_values.insert(root_key(k), gtsam.Pose3(root))
+            self._pending_values.insert(pose_key(k), pose.ravel())
+            t = self.t0 + k * self.period
+            self._pending_stamps[root_key(k)] = self._pending_stamps[pose_key(k)] = t
+            self._pending.add(pose_regularizer_factor(pose_key(k), o.graph.pose_prior_sigma_rad))
+            if self._pose_gmm is not None:
+                self._pending.add(pose_gmm_factor(pose_key(k), self._pose_gmm))
+            if k == 0 and self._gauge is not None:
+                from mocapgraph.pipelines.smartmocap import SmartmocapOptions, gauge_factor
+
+                self._pending.add(gauge_factor(self._gauge, SmartmocapOptions().gauge_sigmas))
+            if k > 0:
+                self._pending.add(root_smoothness_factor(root_key(k - 1), root_key(k), self.period, (o.graph.root_sigma_rad_s, o.graph.root_sigma_m_s)))
+                self._pending.add(pose_velocity_factor(pose_key(k - 1), pose_key(k), self.period, o.graph.pose_sigma_rad_s))
+            self.newest = k
+            created.append((k, root, pose))
+        keep = [*self._static_keys.values(), *self._offsets]
+        keep = [k for k in keep if self.smoother.holds(k) or self._pending_values.exists(k)]
+        report = self.smoother.update(self._pending, self._pending_values, self._pending_stamps, keep=keep)
+        self.stats.solve_seconds.append(report.seconds)
+        self.stats.relinearised.append(report.relinearised)
+        self.stats.batches += int(report.batch)
+        self._pending, self._pending_values, self._pending_stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
+        if self.record:
+            for k, root, pose in created:
+                if k == end:
+                    root, pose = self._state_guess(k)
+                self.filtered[k] = (root, pose)
+            for c, frames in self._frames.items():
+                for t, f in frames.items():
+                    if f.key is None or t in self.filtered_cameras[c]:
+                        continue
+                    self.filtered_cameras[c][t] = self.smoother.estimate.atPose3(f.key).matrix() if self.smoother.estimate.exists(f.key) else f.pose
+        self._retire(report.left)
+        # the camera frames' current estimates, for the gate and the next frames' starts
+        for frames in self._frames.values():
+            for f in frames.values():
+                if f.key is not None and self.smoother.estimate.exists(f.key):
+                    f.pose = self.smoother.estimate.atPose3(f.key).matrix()
+
+    def _retire(self, left: gtsam.Values) -> None:
+        """Record what left the window (states and camera frames) and forget it."""
+        for key in left.keys():
+            symbol = gtsam.Symbol(key)
+            if chr(symbol.chr()) == "r":
+                k = int(symbol.index())
+                if self.record:
+                    self.smoothed[k] = (left.atPose3(key).matrix(), left.atVector(pose_key(k)).reshape(NUM_JOINTS - 1, 3))
+                self._seed.pop(k, None)
+        bound = self.smoother.newest - self.options.lag_s
+        for c, frames in self._frames.items():
+            for t in [t for t, f in frames.items() if t < bound or (f.key is not None and left.exists(f.key))]:
+                f = frames.pop(t)
+                if f.key is not None and self.record:
+                    values = left if left.exists(f.key) else self.smoother.estimate
+                    self.smoothed_cameras[c][t] = values.atPose3(f.key).matrix()
+                self._record_swaps(c, t, f)
+
+    def _record_swaps(self, c: int, t: float, f: _Frame) -> None:
+        codes = [int(lab.choice[0]) for lab in f.labellings if len(lab.choice)]
+        if codes:
+            code = max(codes)
+            self.stats.relabelled += int(code > 0)
+            if self.record:
+                self.swaps[c][t] = code
+
+    # -- output ---------------------------------------------------------------------------------
+
+    def state(self, updated: bool = False) -> OnlineState:
+        """The newest state and every camera's newest pose."""
+        if self.newest < 0:
+            return OnlineState(None, None, updated=updated)
+        root, pose = self._state_guess(self.newest)
+        cameras = {}
+        for c, frames in self._frames.items():
+            if frames:
+                cameras[self.rig.cameras[c].name] = frames[max(frames)].pose
+        return OnlineState(self.newest, self.t0 + self.newest * self.period, root, pose, self.shape, cameras, updated)
+
+    def covariances(self) -> dict[str, np.ndarray]:
+        """Marginal covariances in the window: ``root (6, 6)`` and ``pose (63, 63)`` of the newest
+        state, ``camera:<name> (6, 6)`` of every camera's newest frame variable (Pose3 tangents,
+        rotation first)."""
+        if self.newest < 0:
+            raise MocapgraphError("covariances: no state yet (still bootstrapping)")
+        out = {"root": self.smoother.marginal_covariance(root_key(self.newest)), "pose": self.smoother.marginal_covariance(pose_key(self.newest))}
+        for c, frames in self._frames.items():
+            keyed = [f for f in frames.values() if f.key is not None and self.smoother.holds(f.key)]
+            if keyed:
+                out[f"camera:{self.rig.cameras[c].name}"] = self.smoother.marginal_covariance(max(keyed, key=lambda f: f.time).key)
+        return out
+
+    def finish(self) -> None:
+        """End of stream: close the open interval and take every state still in the window as smoothed."""
+        if not self._bootstrapped and self._buffer:
+            self._bootstrap()
+        if self.open is None:
+            return
+        self._flush()
+        self.open = None
+        self._retire(self.smoother.estimate)
+
+    def results(self, capture_label: str = "", parameters: dict | None = None) -> tuple[Result, Result]:
+        """``(filtered, smoothed)`` as results (after :meth:`finish`, with ``record``)."""
+        if not self.record:
+            raise MocapgraphError("results: the fusion was made with record=False; nothing was kept")
+        if not self.smoothed:
+            raise MocapgraphError("results: no body state was estimated (was the stream shorter than the bootstrap, or empty?)")
+        params = {**options_parameters(self.options), **(parameters or {}), "rig": self.kind, "stats": self.stats.summary()}
+        out = []
+        for kind, states, cams in (("filtered", self.filtered, self.filtered_cameras), ("smoothed", self.smoothed, self.smoothed_cameras)):
+            idx = np.array(sorted(states))
+            roots = np.stack([states[i][0] for i in idx])
+            poses = np.stack([states[i][1] for i in idx])
+            joints = self.body.forward(self.shape, roots, poses).joints
+            detections = np.array([self.detections.get(int(i), 0) for i in idx])
+            result = Result(
+                pipeline="online", capture=capture_label or self.rig.name, world_frame=self.world_frame, timestamps=self.t0 + idx * self.period,
+                joints=joints, body_model=self.body.name, root=roots, pose=poses, shape=self.shape.copy(),
+                flags={"num_detections": detections, "unconstrained": detections == 0, "bootstrap": idx < self._bootstrap_states},
+                parameters={**params, "trajectory": kind},
+            )  # fmt: skip
+            for c, poses_c in cams.items():
+                if poses_c:
+                    ts = np.array(sorted(poses_c))
+                    codes = np.array([self.swaps[c].get(float(t), 0) for t in ts], dtype=np.int8)
+                    result.cameras[self.rig.cameras[c].name] = CameraTrack(ts, np.stack([poses_c[t] for t in ts]), codes)
+            out.append(result)
+        return out[0], out[1]
+
+
+@dataclass
+class OnlineRun:
+    """What :func:`run_online` returns: both trajectories and the stream's counters."""
+
+    filtered: Result
+    smoothed: Result
+    stats: OnlineStats
+    seconds: float
+
+
+def run_online(
+    capture: Capture, options: OnlineOptions | None = None, capture_label: str = "", *, realtime: bool = False,
+    on_update: Callable[[OnlineFusion, OnlineState], None] | None = None,
+) -> OnlineRun:  # fmt: skip
+    """Replay ``capture`` as a stream (:func:`stream`) through an :class:`OnlineFusion`; with
+    ``realtime``, at the capture's own rate (waiting for each frame's time). ``on_update`` is
+    called after every observation (e.g. a live status line)."""
+    options = options or OnlineOptions()
+    fusion = OnlineFusion(static_rig(capture), options)
+    start = time.perf_counter()
+    first = None
+    for frame in stream(capture, options.detector):
+        if realtime:
+            first = frame.timestamp if first is None else first
+            wait = (frame.timestamp - first) - (time.perf_counter() - start)
+            if wait > 0:
+                time.sleep(wait)
+        state = fusion.update(frame.camera, frame.timestamp, frame.keypoints, frame.box, frame.sensors, frame.detector)
+        if on_update is not None:
+            on_update(fusion, state)
+    fusion.finish()
+    seconds = time.perf_counter() - start
+    filtered, smoothed = fusion.results(capture_label, {"seconds": round(seconds, 3)})
+    return OnlineRun(filtered, smoothed, fusion.stats, seconds)
+
+
+def summary(run: OnlineRun) -> str:
+    """The lines ``run online`` prints at the end."""
+    s = run.stats.summary()
+    lat = s["latency_ms"]
+    return (
+        f"online ({run.smoothed.parameters['rig']}): {len(run.smoothed.timestamps)} body states in {run.seconds:.1f} s "
+        f"(bootstrap {s['bootstrap_s']:.1f} s); {s['updates']} updates, {s['updates_per_s']} updates/s, latency p50 {lat['p50']} ms, "
+        f"p95 {lat['p95']} ms, max {lat['max']} ms\n"
+        f"  observations {s['observations']}: used {s['used']} (late {s['late_used']}), dropped late {s['late_dropped']}, "
+        f"gated {s['gated']}, unplaced {s['unplaced']}, empty {s['empty']}; relabelled {s['relabelled']}"
+    )
