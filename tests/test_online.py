@@ -221,3 +221,18 @@ def test_person_out_of_every_view_then_back(rich_long):
     # back on track within 0.3 s of the return, and until the end
     for t in (gap[1] + 0.3, 3.0, 3.6):
         assert _state_error_m(fusion, capture, int(round((t - fusion.t0) / fusion.period))) < 0.06, t
+
+
+def test_online_results_export_and_read_back(rich_run, tmp_path):
+    """Both trajectories of the online loop go through the exporters like any batch result:
+    the BVH's joints read back (test_exports' parser) equal the result's."""
+    from test_exports import Z_UP_FROM_Y_UP, read_bvh
+
+    from mocapgraph.body import JOINT_NAMES
+    from mocapgraph.data_tools.io.exporters import export_result
+
+    for name, result in (("smoothed", rich_run.smoothed), ("filtered", rich_run.filtered)):
+        path = export_result(result, "bvh", tmp_path / f"{name}.bvh")
+        positions, _ = read_bvh(path.read_text())
+        joints = np.stack([positions[n] for n in JOINT_NAMES], axis=1) @ Z_UP_FROM_Y_UP.T
+        np.testing.assert_allclose(joints, result.joints, atol=1e-5)
