@@ -11,7 +11,7 @@ import pytest
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, with_offsets
+from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, offset_basis, offset_parameters, offset_shape_table, with_offsets
 from mocapgraph.body.native import forward_kinematics
 from mocapgraph.body.skeleton import JOINT_NAMES
 from mocapgraph.errors import MocapgraphError
@@ -89,6 +89,33 @@ def scene(body, offsets, T=60):
         cameras.append(np.tile(T_wc, (T, 1, 1)))
     model = build_state_model(cams, dets, "closest")
     return model, Estimate(roots, poses, body.default_shape.copy(), cameras)
+
+
+def test_offset_basis_mirrors_pairs_and_skips_unmapped_points(body):
+    """BlazePose: a parameter moves a left/right pair (mouth_left/mouth_right too) mirrored, a
+    midline point (the nose) only up and forward, an unmapped point (a finger) never; the
+    parameters of symmetric offsets give them back; the extended table's extra shape columns
+    are the offset directions at the carriers."""
+    table = body.table(body.default_shape, keypoints="blazepose33")
+    names = get_format("blazepose33").names
+    basis = offset_basis(table)
+    moved = np.abs(basis).sum(axis=(1, 2)) > 0
+    assert set(np.array(names)[moved]) == set(np.array(names)[table.mapped])
+    assert basis.shape[-1] == 2 + 3 * (int(table.mapped.sum()) - 1) // 2
+    nose, mouth_l, mouth_r = names.index("nose"), names.index("mouth_left"), names.index("mouth_right")
+    assert not basis[nose, 0].any() and basis[nose, 1:].any()
+    np.testing.assert_array_equal(basis[mouth_r], MIRROR[:, None] * basis[mouth_l])
+    offsets = np.zeros((len(names), 3))
+    for name, left in (("hip", (0.022, -0.015, 0.007)), ("shoulder", (0.015, 0.02, -0.01))):
+        offsets[names.index(f"left_{name}")] = left
+        offsets[names.index(f"right_{name}")] = MIRROR * left
+    offsets[nose] = (0.0, 0.01, 0.02)
+    np.testing.assert_allclose(basis @ offset_parameters(basis, offsets), offsets, atol=1e-12)
+    extended = offset_shape_table(table, basis)
+    S = table.d_markers.shape[-1]
+    carriers = carrier_joints(table)
+    np.testing.assert_array_equal(extended.d_markers[np.arange(len(names)), carriers, :, S:], basis)
+    assert not extended.d_offsets[..., S:].any() and extended.d_markers.sum() == pytest.approx(table.d_markers.sum() + basis.sum())
 
 
 def test_offsets_recovered_from_exact_views(body):
