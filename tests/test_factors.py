@@ -437,6 +437,29 @@ def test_reprojection_with_keypoint_offset_variables(scene, gm_sigma_px, variant
         factor(scene.cache, offset_key=gtsam.symbol("k", 0))
 
 
+@pytest.mark.parametrize("gm_sigma_px", [8.0, math.inf])
+def test_reprojection_with_a_shared_focal_length(scene, gm_sigma_px):
+    """Cameras 0 and 2 on one focal key: the factor equals one with both their focal lengths
+    scaled by e^s, has that key once, and its Jacobian (the one shared column) equals central differences."""
+    scene.scale.sigma_px = gm_sigma_px
+    shared = gtsam.symbol("f", 9)
+    factor = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, noise_px=scene.noise_px, focal_keys=[shared, None, shared],
+    )  # fmt: skip
+    assert list(factor.keys()).count(shared) == 1
+    values = gtsam.Values(scene.values)
+    values.insert(shared, np.array([-0.15]))
+    scaled = scene.intrinsics.copy()
+    scaled[[0, 2], :2] *= math.exp(-0.15)
+    plain = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scaled, scene.observed, scene.weights, FORMAT, scene.scale, noise_px=scene.noise_px,
+    )  # fmt: skip
+    assert factor.error(values) == pytest.approx(plain.error(values), rel=1e-12)
+    assert_jacobians(factor, values)
+
+
 def interpolated_factor(scene, fraction: float, shape=True):
     """The scene's observations explained by the state ``fraction`` of the way from state 7 to 8."""
     return reprojection_factor(

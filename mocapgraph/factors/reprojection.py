@@ -246,6 +246,9 @@ class _ReprojectionError:
         self.interpolate = native_module().interpolate_pose  # interpolate_root without its wrapper: ~1 µs a call
         self.labelling = labelling
         self.focals = focals  # [(camera index, key)]: cameras whose focal length is a variable
+        # cameras may share a focal length: one Jacobian column per distinct key, in key order
+        self.focal_keys = list(dict.fromkeys(k for _, k in focals))
+        self.focal_columns = [self.focal_keys.index(k) for _, k in focals]
         self.offset_key = offset_key  # the format's keypoint-offset parameters (Vector(D)), or None
 
     def _predicted(self, entry, arrays, args) -> tuple[np.ndarray, np.ndarray]:
@@ -290,10 +293,10 @@ class _ReprojectionError:
             drde = w[..., None, None] * np.eye(2)
         centred = predicted - intrinsics[:, None, 2:]  # (u - cx, v - cy)
         per_camera = np.einsum("ckij,ckj->cki", drde, centred).reshape(C, 2 * K)
-        out = np.zeros((C, 2 * K, len(self.focals)))
-        for i, (c, _) in enumerate(self.focals):
+        out = np.zeros((C, 2 * K, len(self.focal_keys)))
+        for (c, _), i in zip(self.focals, self.focal_columns):
             out[c, :, i] = per_camera[c]
-        return out.reshape(2 * C * K, len(self.focals))
+        return out.reshape(2 * C * K, len(self.focal_keys))
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
         shape = self.fixed_shape if self.shape_key is None else values.atVector(self.shape_key)
@@ -363,7 +366,7 @@ class _ReprojectionError:
             for i, (c, _) in enumerate(self.refined):
                 H[self.first_camera + i] = jac[:, P + 6 * c : P + 6 * c + 6]
             extra = 1 if self.labelling is not None else 0
-            for i, (c, _) in enumerate(self.focals):
+            for i in range(len(self.focal_keys)):
                 H[self.first_camera + len(self.refined) + i] = np.vstack([focal_jac[:, [i]], np.zeros((extra, 1))])
             if self.offset_key is not None:
                 H[-1] = jac[:, S:P]
@@ -420,13 +423,14 @@ def reprojection_factor(
             says after each evaluation which one each camera took); None: the points as detected.
         focal_keys: per camera, the key of its focal length's log scale ``s`` (``Vector(1)``:
             ``fx, fy = e^s`` times the ``intrinsics``' ones, principal point fixed) when the focal
-            length is estimated, else None; None: every focal length as given.
+            length is estimated, else None; None: every focal length as given. Cameras may
+            share a key (one focal length for several cameras of the same model).
         offset_key: the key of the format's keypoint-definition offset parameters (``Vector(D)``,
             the ``table_cache``'s ``offset_basis``), or None: the cache's tables as they are.
 
     Returns:
         A ``gtsam.CustomFactor`` on ``[root_key, pose_key, *next_state, shape_key, *refined
-        camera keys, *focal keys, offset key]`` (camera order), two rows per usable observation (camera-major) and, with
+        camera keys, *distinct focal keys, offset key]`` (camera order), two rows per usable observation (camera-major) and, with
         ``labelling``, one row for the relabellings' cost; unit noise model (whitened inside).
 
     Raises:
@@ -486,7 +490,7 @@ def reprojection_factor(
     if len(focal_keys) != C:
         raise MocapgraphError(f"focal_keys: one entry per camera ({C}), got {len(focal_keys)}")
     focals = [(c, int(k)) for c, k in enumerate(focal_keys) if k is not None]
-    keys += [k for _, k in focals]
+    keys += list(dict.fromkeys(k for _, k in focals))
     if offset_key is not None:
         if table_cache.offset_basis is None:
             raise MocapgraphError("offset_key: the table_cache has no offset_basis (ShapeTableCache(..., offset_basis=...))")
