@@ -84,6 +84,8 @@ class SmartmocapOptions:
     # "alternation": all held there.
     offset_estimation: str = "joint"
     offset_iterations: int = 15
+    # Views left out, and the sequence solved again, up to this many times while more show up.
+    offset_rounds: int = 2
     executor: str = "local"
     workers: int = 2
     address: str | None = None
@@ -109,6 +111,8 @@ class SmartmocapOptions:
             raise MocapgraphError(f"chunk_size: the motion prior's windows are {WINDOW} states; use {WINDOW} or motion_prior 'none'")
         if self.offset_estimation not in OFFSET_ESTIMATIONS:
             raise MocapgraphError(f"offset_estimation {self.offset_estimation!r}: choose one of {', '.join(OFFSET_ESTIMATIONS)}")
+        if not (isinstance(self.offset_rounds, int) and self.offset_rounds >= 1):
+            raise MocapgraphError(f"offset_rounds: a whole number >= 1, got {self.offset_rounds!r}")
         if not (isinstance(self.offset_iterations, int) and self.offset_iterations >= 1):
             raise MocapgraphError(f"offset_iterations: a whole number >= 1, got {self.offset_iterations!r}")
         if not (isinstance(self.workers, int) and self.workers >= 1):
@@ -343,20 +347,31 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         for fit in fits:
             notes.append(f"{fit.fmt} keypoints: definition offsets estimated from {int(fit.frames.max(initial=0))} frames, up to "
                          f"{100 * np.linalg.norm(fit.offsets, axis=1).max(initial=0):.1f} cm" + (f"; {', '.join(fit.dropped)} implausible, not used" if fit.dropped else ""))  # fmt: skip
-        outliers = outlier_views(body, solved_model, estimate, offsets)
-        for c, frames in sorted(outliers.items()):
-            notes.append(f"camera {model.names[c]}: {len(frames)} frames left out of the last pass, explained far worse than the others (frames {_ranges(frames)})")
-        model = model.without(outliers)
         joint = options.offset_estimation == "joint"
-        bg, graph, solved_final = final_pass(model, body, options, learned, estimate, offsets, options.offset_iterations, estimate_offsets=joint)
-        estimate = bg.read(solved_final.values, estimate)
-        estimate.log += list(solved_final.log)
+        left_out: dict[int, list[np.ndarray]] = {}
+        for attempt in range(options.offset_rounds):
+            # a view left out lets the body go back to the person, which can show more such views
+            outliers = outlier_views(body, solved_model, estimate, offsets)
+            if attempt and not outliers:
+                break
+            for c, frames in outliers.items():
+                left_out.setdefault(c, []).append(frames)
+            model = model.without(outliers)
+            bg, graph, solved_final = final_pass(model, body, options, learned, estimate, offsets, options.offset_iterations, estimate_offsets=joint)
+            estimate = bg.read(solved_final.values, estimate)
+            estimate.log += list(solved_final.log)
+            if joint:
+                offsets = bg.offsets(solved_final.values)
+            if attempt + 1 < options.offset_rounds:
+                solved_model = model.relabelled(bg.relabelled(estimate))
+        for c, parts in sorted(left_out.items()):
+            frames = np.sort(np.concatenate(parts))
+            notes.append(f"camera {model.names[c]}: {len(frames)} frames left out of the last pass, explained far worse than the others (frames {_ranges(frames)})")
         if joint:
-            offsets = bg.offsets(solved_final.values)
             fits = [replace(fit, offsets=offsets[fit.fmt]) for fit in fits]
-            notes += [f"{fmt} keypoints: the offsets of {', '.join(options.graph.offset_parts)} points estimated with the body: "
+            notes += [f"{fit.fmt} keypoints: the offsets of {', '.join(options.graph.offset_parts)} points estimated with the body: "
                       + ", ".join(f"{name} {100 * np.linalg.norm(v):.1f} cm" for name, v in fit.as_table().items() if part_name(name) in options.graph.offset_parts)
-                      for fmt, fit in ((fit.fmt, fit) for fit in fits)]  # fmt: skip
+                      for fit in fits]  # fmt: skip
     labels = bg.relabelled(estimate)
     swaps = combined_swaps(model, before, labels)
     notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate))
