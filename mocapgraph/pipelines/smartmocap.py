@@ -79,10 +79,12 @@ class SmartmocapOptions:
     # The detector's keypoint definitions estimated from the final pass (graphs.keypoint_fit) and
     # the sequence solved again with them.
     keypoint_offsets: bool = True
-    # "joint": the offsets of the points the graph options name (`offset_parts`) are variables
-    # of that second solve, starting at the ones the first solve shows, the others held there;
-    # "alternation": all held there.
-    offset_estimation: str = "joint"
+    # "alternation": held at the ones the first solve shows; "joint": those of the points the
+    # graph options name (`offset_parts`) are variables of that second solve, started there. On
+    # rich (10 s) joint shoulders lowered MPE with realistic faults (1.98 -> 1.59 cm) but raised
+    # RA-MPJPE (3.41 -> 3.71) and the static cameras' error (0.82 -> 1.10 cm), and without
+    # faults too (3.09 -> 3.62 cm, 0.57 -> 0.79 cm): the pelvis's orientation trades with them.
+    offset_estimation: str = "alternation"
     offset_iterations: int = 15
     # Views left out, and the sequence solved again, up to this many times while more show up.
     offset_rounds: int = 2
