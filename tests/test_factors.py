@@ -11,6 +11,7 @@ import pytest
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.keypoint_offsets import offset_basis
 from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.errors import MocapgraphError
@@ -396,6 +397,67 @@ def test_reprojection_with_variable_focal_lengths(scene, gm_sigma_px, labelled):
             scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
             scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, focal_keys=focal_keys[:2],
         )  # fmt: skip
+
+
+@pytest.mark.parametrize("gm_sigma_px", [8.0, math.inf])
+@pytest.mark.parametrize("variant", ["plain", "labelled, focal", "interpolated, fixed shape"])
+def test_reprojection_with_keypoint_offset_variables(scene, gm_sigma_px, variant):
+    """The format's keypoint offsets as a variable: at parameters θ the factor equals one whose
+    tables carry the offsets ``basis @ θ`` as constants; its Jacobians (the offsets' columns,
+    through the shape table's extra columns) equal central differences, with labelling
+    hypotheses, a focal length, an interpolated state and a fixed shape too."""
+    scene.scale.sigma_px = gm_sigma_px
+    basis = offset_basis(scene.body.table(scene.shape, keypoints=FORMAT))
+    assert basis.shape == (17, 3, 2 + 3 * 8)  # the nose (up, forward) and eight left/right pairs
+    theta = np.random.default_rng(5).normal(scale=0.03, size=basis.shape[-1])
+    variable, constant = ShapeTableCache(scene.body, FORMAT, offset_basis=basis), ShapeTableCache(scene.body, FORMAT, offsets=basis @ theta)
+    extra, values = {}, gtsam.Values(scene.values)
+    if variant == "labelled, focal":
+        extra = {"labelling": Labelling(PERMUTATIONS, cost=2.0), "focal_keys": [gtsam.symbol("f", 0), None, None]}
+        values.insert(gtsam.symbol("f", 0), np.array([0.1]))
+    if variant == "interpolated, fixed shape":
+        extra = {"next_state": (root_key(8), pose_key(8)), "fraction": 0.3}
+        values = two_states(scene)
+    shape = {"shape_key": None, "fixed_shape": scene.shape} if "fixed shape" in variant else {"shape_key": shape_key()}
+
+    def factor(cache, **more):
+        return reprojection_factor(
+            scene.body, cache, root_key(7), pose_key(7), camera_keys=scene.camera_keys, fixed_cameras=[None, scene.cameras[1], None],
+            intrinsics=scene.intrinsics, observed=scene.observed, weights=scene.weights, keypoint_format=FORMAT, scale=scene.scale,
+            noise_px=scene.noise_px, **shape, **extra, **more,
+        )  # fmt: skip
+
+    with_offsets = factor(variable, offset_key=gtsam.symbol("k", 0))
+    assert list(with_offsets.keys())[-1] == gtsam.symbol("k", 0)
+    values.insert(gtsam.symbol("k", 0), theta)
+    assert with_offsets.error(values) == pytest.approx(factor(constant).error(values), rel=1e-10)
+    assert with_offsets.error(values) != pytest.approx(factor(scene.cache).error(values), rel=1e-3)
+    assert_jacobians(with_offsets, values)
+    with pytest.raises(MocapgraphError, match="offset_basis"):
+        factor(scene.cache, offset_key=gtsam.symbol("k", 0))
+
+
+@pytest.mark.parametrize("gm_sigma_px", [8.0, math.inf])
+def test_reprojection_with_a_shared_focal_length(scene, gm_sigma_px):
+    """Cameras 0 and 2 on one focal key: the factor equals one with both their focal lengths
+    scaled by e^s, has that key once, and its Jacobian (the one shared column) equals central differences."""
+    scene.scale.sigma_px = gm_sigma_px
+    shared = gtsam.symbol("f", 9)
+    factor = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scene.intrinsics, scene.observed, scene.weights, FORMAT, scene.scale, noise_px=scene.noise_px, focal_keys=[shared, None, shared],
+    )  # fmt: skip
+    assert list(factor.keys()).count(shared) == 1
+    values = gtsam.Values(scene.values)
+    values.insert(shared, np.array([-0.15]))
+    scaled = scene.intrinsics.copy()
+    scaled[[0, 2], :2] *= math.exp(-0.15)
+    plain = reprojection_factor(
+        scene.body, scene.cache, root_key(7), pose_key(7), shape_key(), scene.camera_keys, [None, scene.cameras[1], None],
+        scaled, scene.observed, scene.weights, FORMAT, scene.scale, noise_px=scene.noise_px,
+    )  # fmt: skip
+    assert factor.error(values) == pytest.approx(plain.error(values), rel=1e-12)
+    assert_jacobians(factor, values)
 
 
 def interpolated_factor(scene, fraction: float, shape=True):

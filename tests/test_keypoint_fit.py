@@ -11,11 +11,14 @@ import pytest
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, with_offsets
+from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, offset_basis, offset_parameters, offset_shape_table, with_offsets
 from mocapgraph.body.native import forward_kinematics
 from mocapgraph.body.skeleton import JOINT_NAMES
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.factors.keys import focal_key
+from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions
 from mocapgraph.graphs.keypoint_fit import PRIOR_FRAMES, estimate_offsets, outlier_views, reprojection_medians
+from mocapgraph.graphs.solver import SolverOptions, held, levenberg_marquardt
 from mocapgraph.graphs.state_model import CameraDetections, CameraInfo, Estimate, build_state_model
 
 FMT = "coco17"
@@ -91,6 +94,33 @@ def scene(body, offsets, T=60):
     return model, Estimate(roots, poses, body.default_shape.copy(), cameras)
 
 
+def test_offset_basis_mirrors_pairs_and_skips_unmapped_points(body):
+    """BlazePose: a parameter moves a left/right pair (mouth_left/mouth_right too) mirrored, a
+    midline point (the nose) only up and forward, an unmapped point (a finger) never; the
+    parameters of symmetric offsets give them back; the extended table's extra shape columns
+    are the offset directions at the carriers."""
+    table = body.table(body.default_shape, keypoints="blazepose33")
+    names = get_format("blazepose33").names
+    basis = offset_basis(table)
+    moved = np.abs(basis).sum(axis=(1, 2)) > 0
+    assert set(np.array(names)[moved]) == set(np.array(names)[table.mapped])
+    assert basis.shape[-1] == 2 + 3 * (int(table.mapped.sum()) - 1) // 2
+    nose, mouth_l, mouth_r = names.index("nose"), names.index("mouth_left"), names.index("mouth_right")
+    assert not basis[nose, 0].any() and basis[nose, 1:].any()
+    np.testing.assert_array_equal(basis[mouth_r], MIRROR[:, None] * basis[mouth_l])
+    offsets = np.zeros((len(names), 3))
+    for name, left in (("hip", (0.022, -0.015, 0.007)), ("shoulder", (0.015, 0.02, -0.01))):
+        offsets[names.index(f"left_{name}")] = left
+        offsets[names.index(f"right_{name}")] = MIRROR * left
+    offsets[nose] = (0.0, 0.01, 0.02)
+    np.testing.assert_allclose(basis @ offset_parameters(basis, offsets), offsets, atol=1e-12)
+    extended = offset_shape_table(table, basis)
+    S = table.d_markers.shape[-1]
+    carriers = carrier_joints(table)
+    np.testing.assert_array_equal(extended.d_markers[np.arange(len(names)), carriers, :, S:], basis)
+    assert not extended.d_offsets[..., S:].any() and extended.d_markers.sum() == pytest.approx(table.d_markers.sum() + basis.sum())
+
+
 def test_offsets_recovered_from_exact_views(body):
     """At the true body and cameras, the estimate is the offsets that made the detections,
     shrunk by n / (n + PRIOR_FRAMES) for the n = 2 × 60 pooled frames of each pair."""
@@ -101,6 +131,52 @@ def test_offsets_recovered_from_exact_views(body):
     np.testing.assert_allclose(fit.offsets, known_offsets() * n / (n + PRIOR_FRAMES), atol=1e-6)
     assert fit.dropped == []
     assert set(fit.as_table()) == {f"{s}_{p}" for s in ("left", "right") for p in ("hip", "shoulder", "ankle")}
+
+
+def test_offsets_estimated_with_the_body(body):
+    """Exact views of a body whose shoulders and hips carry offsets, the cameras and shape held
+    at the truth: the graph's offset variables, started at zero, land within 2 mm of the truth,
+    but for the hips' forward part: to first order it is the root moved forward and the spine
+    and legs turned back, so only the prior decides it and shrinks it (a third here); the other
+    points' offsets stay as given (none)."""
+    truth = known_offsets()
+    model, est = scene(body, truth, T=30)
+    options = GraphOptions(offsets="estimate", offset_parts=("shoulder", "hip"), pose_prior="none", shape="hold", joint_sigma_m_s=None)
+    bg = BodyGraph(model, body, options, fixed_cameras={c: est.cameras[c] for c in range(4)})
+    graph, values = bg.sequence(est)
+    solved = levenberg_marquardt(held(graph, values, bg.held_keys()), values, SolverOptions(max_iterations=40))
+    got = bg.offsets(solved.values)[FMT]
+    names = get_format(FMT).names
+    free = [names.index(f"{side}_{part}") for side in ("left", "right") for part in ("shoulder", "hip")]
+    hips = [names.index("left_hip"), names.index("right_hip")]
+    forward = np.zeros((len(names), 3), dtype=bool)
+    forward[hips, 2] = True
+    np.testing.assert_allclose(got[free][~forward[free]], truth[free][~forward[free]], atol=0.002)
+    assert np.all((got[hips, 2] > 0.3 * truth[hips, 2]) & (got[hips, 2] < truth[hips, 2]))
+    others = np.setdiff1d(np.arange(len(names)), free)
+    assert not got[others].any()
+    assert np.abs(bg.offsets(values)[FMT]).max() == 0.0  # the start: the given offsets, none
+
+
+def test_guessed_alike_cameras_share_a_focal_length(body):
+    """Three cameras guessed with one K and a fourth with another: two focal variables (one per
+    guess), each camera's focal length read from its group's; each its own without focal_shared."""
+    model, est = scene(body, np.zeros((17, 3)), T=5)
+    other = model.cameras[3].K.copy()
+    other[:2, :2] *= 1.5
+    model = replace(model, cameras=[replace(cam, focal_guessed=True, K=other if c == 3 else cam.K) for c, cam in enumerate(model.cameras)])
+    bg = BodyGraph(model, body, GraphOptions(pose_prior="none"))
+    assert bg.focal_leader == {0: 0, 1: 0, 2: 0, 3: 3}
+    values = bg.values(est)
+    assert [values.exists(focal_key(c)) for c in range(4)] == [True, False, False, True]
+    values.update(focal_key(0), np.array([0.2]))
+    out = bg.read(values, est)
+    np.testing.assert_array_equal(out.focal_log, [0.2, 0.2, 0.2, 0.0])
+    graph, _ = bg.sequence(est)
+    keys = {k for i in range(graph.size()) for k in graph.at(i).keys()}
+    assert {focal_key(c) for c in range(4)} & keys == {focal_key(0), focal_key(3)}
+    alone = BodyGraph(model, body, GraphOptions(pose_prior="none", focal_shared=False))
+    assert alone.focal_leader == {c: c for c in range(4)}
 
 
 def test_implausible_offsets_are_dropped(body):

@@ -31,6 +31,7 @@ def _graph_flags(flags: OptionFlags, pose_priors: tuple[str, ...]) -> None:
     flags.add("graph.gm_sigma_px", "Geman-McClure scale in pixels")
     flags.add("graph.swaps", "keep the detectors' left/right labels as detected (no swap check, no relabelling in the solve)")
     flags.add("graph.focal", "which cameras' focal lengths are variables: those whose intrinsics were guessed, all, or none", choices=FOCAL_MODES)
+    flags.add("graph.focal_shared", "give every guessed camera its own focal length (default: cameras guessed alike, i.e. of the same image size, share one)")
 
 
 def _uncalibrated_flags(flags: OptionFlags) -> None:

@@ -16,6 +16,7 @@ GTSAM keys are ``gtsam.symbol(char, index)``:
 | motion-prior canonical frame of window ``w`` (ground origin x, y in metres, yaw in radians) | ``motion_frame_key(w)`` = ``symbol('n', w)`` | ``Vector(3)`` |
 | the ground plane (tilt about world X and Y in radians, height in metres) | ``ground_key()`` = ``symbol('g', 0)`` | ``Vector(3)`` |
 | focal length of camera ``c``, as the log of its ratio to the capture's (``fx, fy = e^s·(fx₀, fy₀)``) | ``focal_key(c)`` = ``symbol('f', c)`` | ``Vector(1)`` |
+| keypoint-definition offset parameters of detector format ``f`` (``mocapgraph.body.keypoint_offsets.offset_basis``, metres) | ``keypoint_offset_key(f)`` = ``symbol('k', f)`` | ``Vector(D)`` |
 
 Body states are numbered in time order; cameras in capture order, frames in each camera's order.
 """
@@ -68,6 +69,10 @@ def ground_key() -> int:
 
 def focal_key(camera: int) -> int:
     return gtsam.symbol("f", camera)
+
+
+def keypoint_offset_key(fmt_index: int) -> int:
+    return gtsam.symbol("k", fmt_index)
 
 
 def nav_keys(n: int) -> tuple[int, int, int]:

@@ -46,7 +46,7 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.keypoint_offsets import with_offsets
+from mocapgraph.body.keypoint_offsets import carrier_joints, offset_shape_table, with_offsets
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.native import native_module, table_arrays
 from mocapgraph.body.skeleton import NUM_JOINTS
@@ -63,6 +63,7 @@ class _TableEntry:
     table: BodyTable
     arrays: tuple[np.ndarray, ...]
     all_mapped: bool
+    carriers: np.ndarray  # (K,) the joint carrying each point's offset
 
 
 class ShapeTableCache:
@@ -81,14 +82,19 @@ class ShapeTableCache:
         builds: how many tables were built (a counter for tests and profiling).
         offsets: ``(K, 3)`` the format's keypoint-definition offsets added to every table
             (:mod:`mocapgraph.body.keypoint_offsets`), or None.
+        offset_basis: ``(K, 3, D)`` offsets as variables
+            (:func:`~mocapgraph.body.keypoint_offsets.offset_basis`), or None: every table is
+            then :func:`~mocapgraph.body.keypoint_offsets.offset_shape_table`'s, whose last ``D``
+            shape columns are the parameters', and :meth:`arrays` adds their offsets.
     """
 
-    def __init__(self, body: BodyModel, keypoint_format: str = "body", size: int = 2, offsets=None):
+    def __init__(self, body: BodyModel, keypoint_format: str = "body", size: int = 2, offsets=None, offset_basis=None):
         if size < 1:
             raise MocapgraphError(f"ShapeTableCache size must be >= 1, got {size}")
         self.body = body
         self.keypoint_format = "body" if keypoint_format == "body" else get_format(keypoint_format).name
         self.offsets = None if offsets is None else np.asarray(offsets, dtype=float)
+        self.offset_basis = None if offset_basis is None else as_checked_array(offset_basis, "offset_basis", (self.num_keypoints, 3, None))
         self.size = int(size)
         self.builds = 0
         self._entries: list[_TableEntry] = []
@@ -112,11 +118,27 @@ class ShapeTableCache:
         table = self.body.table(np.frombuffer(key), keypoints=self.keypoint_format)
         if self.offsets is not None:
             table = with_offsets(table, self.offsets)
+        if self.offset_basis is not None:
+            table = offset_shape_table(table, self.offset_basis)
         self.builds += 1
-        e = _TableEntry(key, table, table_arrays(table), bool(np.all(table.mapped)))
+        e = _TableEntry(key, table, table_arrays(table), bool(np.all(table.mapped)), carrier_joints(table))
         self._entries.insert(0, e)
         del self._entries[self.size :]
         return e
+
+    @property
+    def offset_dim(self) -> int:
+        """D, the number of offset parameters appended to the tables' shape (0 without a basis)."""
+        return 0 if self.offset_basis is None else self.offset_basis.shape[-1]
+
+    def arrays(self, entry: _TableEntry, parameters) -> tuple[np.ndarray, ...]:
+        """The native arrays of ``entry``'s table with the offsets of ``parameters (D,)`` added
+        at the points' carriers (the markers copied; the rest shared)."""
+        if self.offset_basis is None:
+            return entry.arrays
+        markers = entry.arrays[4].copy()
+        markers[np.arange(len(markers)), entry.carriers] += self.offset_basis @ np.asarray(parameters, dtype=float)
+        return entry.arrays[:4] + (markers,) + entry.arrays[5:]
 
     def __call__(self, shape) -> BodyTable:
         """The :class:`BodyTable` of ``shape`` (``(S,)``), from the cache when the shape is known."""
@@ -203,7 +225,7 @@ class Labelling:
 class _ReprojectionError:
     """The CustomFactor callback: reads the variables, runs the native kernel, slices the Jacobian."""
 
-    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, rows, labelling, focals):
+    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, rows, labelling, focals, offset_key):
         self.cache = cache
         self.rows = rows  # the kernel's rows that are kept (usable observations), or None for all
         self.states = states  # [(root key, pose key)]: one state, or two interpolated by `fraction`
@@ -224,14 +246,18 @@ class _ReprojectionError:
         self.interpolate = native_module().interpolate_pose  # interpolate_root without its wrapper: ~1 µs a call
         self.labelling = labelling
         self.focals = focals  # [(camera index, key)]: cameras whose focal length is a variable
+        # cameras may share a focal length: one Jacobian column per distinct key, in key order
+        self.focal_keys = list(dict.fromkeys(k for _, k in focals))
+        self.focal_columns = [self.focal_keys.index(k) for _, k in focals]
+        self.offset_key = offset_key  # the format's keypoint-offset parameters (Vector(D)), or None
 
-    def _predicted(self, entry, args) -> tuple[np.ndarray, np.ndarray]:
+    def _predicted(self, entry, arrays, args) -> tuple[np.ndarray, np.ndarray]:
         """``(C, K, 2)`` the body's points projected at the current values and ``(C, K)`` where
         that is valid (mapped, in front): one kernel pass without Jacobians."""
         C, K = self.observed.shape[:2]
         # observed 0 and weight 1: the residual is the predicted pixel itself, where it is valid
         ones = np.ascontiguousarray(np.broadcast_to(entry.table.mapped[None].astype(float), (C, K)))
-        predicted, _, in_front = self.kernel(*entry.arrays, *args, np.zeros((C, K, 2)), ones, np.inf, self.min_depth, False)
+        predicted, _, in_front = self.kernel(*arrays, *args, np.zeros((C, K, 2)), ones, np.inf, self.min_depth, False)
         return predicted.reshape(C, K, 2), in_front
 
     def _choose(self, entry, predicted, in_front) -> np.ndarray:
@@ -267,14 +293,15 @@ class _ReprojectionError:
             drde = w[..., None, None] * np.eye(2)
         centred = predicted - intrinsics[:, None, 2:]  # (u - cx, v - cy)
         per_camera = np.einsum("ckij,ckj->cki", drde, centred).reshape(C, 2 * K)
-        out = np.zeros((C, 2 * K, len(self.focals)))
-        for i, (c, _) in enumerate(self.focals):
+        out = np.zeros((C, 2 * K, len(self.focal_keys)))
+        for (c, _), i in zip(self.focals, self.focal_columns):
             out[c, :, i] = per_camera[c]
-        return out.reshape(2 * C * K, len(self.focals))
+        return out.reshape(2 * C * K, len(self.focal_keys))
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
         shape = self.fixed_shape if self.shape_key is None else values.atVector(self.shape_key)
         entry = self.cache.entry(shape)
+        arrays = entry.arrays if self.offset_key is None else self.cache.arrays(entry, values.atVector(self.offset_key))
         cameras = self.cameras
         for c, key in self.refined:
             cameras[c] = values.atPose3(key).matrix()
@@ -296,7 +323,7 @@ class _ReprojectionError:
         relabel = self.labelling is not None and self.labelling.enabled and np.isfinite(self.scale.sigma_px)
         try:
             # the predicted pixels, once, for whichever of the labelling and the focal Jacobian needs them
-            predicted = self._predicted(entry, args) if relabel or (H is not None and self.focals) else None
+            predicted = self._predicted(entry, arrays, args) if relabel or (H is not None and self.focals) else None
             if self.labelling is not None:
                 # the body's point k is compared with the detection labelled perm[k]; whether the
                 # body has a point k at all (mapped) goes with k, not with the detection
@@ -309,7 +336,7 @@ class _ReprojectionError:
                 # A permutation within each camera keeps its number of usable points: the
                 # residual's dimension does not change with the labelling, only which rows.
                 rows = np.flatnonzero(np.repeat((np.isfinite(observed).all(-1) & (detected > 0)).ravel(), 2))
-            residual, jac, _ = self.kernel(*entry.arrays, *args, observed, weights, self.scale.sigma_px, self.min_depth, H is not None)
+            residual, jac, _ = self.kernel(*arrays, *args, observed, weights, self.scale.sigma_px, self.min_depth, H is not None)
         except ValueError as exc:
             raise MocapgraphError(str(exc)) from None
         if H is not None and self.focals:
@@ -325,6 +352,7 @@ class _ReprojectionError:
             jac = None if jac is None else np.vstack([jac, np.zeros((1, jac.shape[1]))])
         if H is not None:
             P = 6 + POSE_DIM + entry.table.shape_dim
+            S = P - self.cache.offset_dim  # the shape's columns end here, the offset parameters' follow
             if len(self.states) == 1:
                 H[0] = jac[:, 0:6]
                 H[1] = jac[:, 6 : 6 + POSE_DIM]
@@ -334,12 +362,14 @@ class _ReprojectionError:
                 H[2] = jac[:, 0:6] @ A1
                 H[3] = a * jac[:, 6 : 6 + POSE_DIM]
             if self.shape_key is not None:
-                H[self.first_camera - 1] = jac[:, 6 + POSE_DIM : P]
+                H[self.first_camera - 1] = jac[:, 6 + POSE_DIM : S]
             for i, (c, _) in enumerate(self.refined):
                 H[self.first_camera + i] = jac[:, P + 6 * c : P + 6 * c + 6]
             extra = 1 if self.labelling is not None else 0
-            for i, (c, _) in enumerate(self.focals):
+            for i in range(len(self.focal_keys)):
                 H[self.first_camera + len(self.refined) + i] = np.vstack([focal_jac[:, [i]], np.zeros((extra, 1))])
+            if self.offset_key is not None:
+                H[-1] = jac[:, S:P]
         return residual
 
 
@@ -363,6 +393,7 @@ def reprojection_factor(
     fraction: float = 0.0,
     labelling: Labelling | None = None,
     focal_keys: list[int | None] | None = None,
+    offset_key: int | None = None,
 ) -> gtsam.CustomFactor:
     """Reprojection of one body state's keypoints into C cameras (see the module docstring).
 
@@ -392,11 +423,14 @@ def reprojection_factor(
             says after each evaluation which one each camera took); None: the points as detected.
         focal_keys: per camera, the key of its focal length's log scale ``s`` (``Vector(1)``:
             ``fx, fy = e^s`` times the ``intrinsics``' ones, principal point fixed) when the focal
-            length is estimated, else None; None: every focal length as given.
+            length is estimated, else None; None: every focal length as given. Cameras may
+            share a key (one focal length for several cameras of the same model).
+        offset_key: the key of the format's keypoint-definition offset parameters (``Vector(D)``,
+            the ``table_cache``'s ``offset_basis``), or None: the cache's tables as they are.
 
     Returns:
         A ``gtsam.CustomFactor`` on ``[root_key, pose_key, *next_state, shape_key, *refined
-        camera keys, *focal keys]`` (camera order), two rows per usable observation (camera-major) and, with
+        camera keys, *distinct focal keys, offset key]`` (camera order), two rows per usable observation (camera-major) and, with
         ``labelling``, one row for the relabellings' cost; unit noise model (whitened inside).
 
     Raises:
@@ -456,9 +490,13 @@ def reprojection_factor(
     if len(focal_keys) != C:
         raise MocapgraphError(f"focal_keys: one entry per camera ({C}), got {len(focal_keys)}")
     focals = [(c, int(k)) for c, k in enumerate(focal_keys) if k is not None]
-    keys += [k for _, k in focals]
+    keys += list(dict.fromkeys(k for _, k in focals))
+    if offset_key is not None:
+        if table_cache.offset_basis is None:
+            raise MocapgraphError("offset_key: the table_cache has no offset_basis (ShapeTableCache(..., offset_basis=...))")
+        keys.append(int(offset_key))
     if len(set(keys)) != len(keys):
-        raise MocapgraphError("reprojection_factor: the root, pose, shape, camera and focal keys must all differ")
+        raise MocapgraphError("reprojection_factor: the root, pose, shape, camera, focal and offset keys must all differ")
     if fixed_shape is not None:
         fixed_shape = as_checked_array(fixed_shape, "fixed_shape", (body.shape_dim,))
     usable = np.repeat((np.isfinite(observed).all(-1) & (weights > 0)).ravel(), 2)
@@ -482,6 +520,7 @@ def reprojection_factor(
         None if usable.all() else np.flatnonzero(usable),
         labelling,
         focals,
+        None if offset_key is None else int(offset_key),
     )
     rows = int(usable.sum()) + (labelling is not None)
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), keys, error)

@@ -21,13 +21,14 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.keypoint_offsets import offset_basis, offset_parameters
 from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
-from mocapgraph.factors.keys import focal_key, motion_frame_key, motion_latent_key, pose_key, pose_latent_key, root_key, shape_key
+from mocapgraph.factors.keys import focal_key, keypoint_offset_key, motion_frame_key, motion_latent_key, pose_key, pose_latent_key, root_key, shape_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import (
@@ -47,6 +48,7 @@ POSE_PRIORS = ("none", "gmm", "vae")
 SHAPE_MODES = ("hold", "estimate")
 POSE_SMOOTHNESS = ("velocity", "acceleration")
 FOCAL_MODES = ("guessed", "all", "fixed")
+OFFSET_MODES = ("fixed", "estimate")
 
 
 @dataclass
@@ -97,6 +99,18 @@ class GraphOptions:
     # "fixed"; each held near its given value by a log-normal prior of this width.
     focal: str = "guessed"
     focal_sigma_log: float = 0.3
+    # Cameras whose focal lengths were guessed alike (the same guessed K, so the same image size:
+    # most often the same camera model) share one focal variable. Each its own, on the real
+    # clip's four identical cameras, scattered them 9-24 % off and bent the rig (27 cm).
+    focal_shared: bool = True
+    # Keypoint-definition offsets (mocapgraph.body.keypoint_offsets): "fixed" at the ones the
+    # BodyGraph is given (none by default), or "estimate"d with the body as one variable per
+    # detector format, starting at the given ones, each parameter ~ N(0, offset_sigma_m²), for
+    # the points of `offset_parts` (the others held). With every point free the body drifted away
+    # from its keypoints where the pose and motion priors liked it better (half a metre on rich).
+    offsets: str = "fixed"
+    offset_sigma_m: float = 0.015
+    offset_parts: tuple[str, ...] = ("shoulder",)
 
     def check(self) -> None:
         for name, value, choices in (
@@ -104,12 +118,13 @@ class GraphOptions:
             ("shape", self.shape, SHAPE_MODES),
             ("pose_smoothness", self.pose_smoothness, POSE_SMOOTHNESS),
             ("focal", self.focal, FOCAL_MODES),
+            ("offsets", self.offsets, OFFSET_MODES),
         ):
             if value not in choices:
                 raise MocapgraphError(f"{name} {value!r}: choose one of {', '.join(choices)}")
         for name in ("noise_px", "gm_sigma_px", "pose_prior_sigma_rad", "shape_prior_sigma", "root_sigma_rad_s", "root_sigma_m_s",
                      "pose_sigma_rad_s", "pose_sigma_rad_s2", "camera_sigma_rad_s", "camera_sigma_m_s", "ground_sigma_m",
-                     "swap_cost_sigmas", "focal_sigma_log"):  # fmt: skip
+                     "swap_cost_sigmas", "focal_sigma_log", "offset_sigma_m"):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
@@ -166,7 +181,8 @@ class BodyGraph:
         fixed_cameras: per camera, ``(F_c, 4, 4)`` constant world_T_camera (no variable).
         fixed_shape: ``(S,)`` a constant shape (no shape variable), e.g. a per-frame fit's.
         keypoint_offsets: per keypoint format, ``(K, 3)`` its points' definition offsets
-            (:mod:`mocapgraph.body.keypoint_offsets`), e.g. from :func:`~mocapgraph.graphs.keypoint_fit.estimate_offsets`.
+            (:mod:`mocapgraph.body.keypoint_offsets`), e.g. from :func:`~mocapgraph.graphs.keypoint_fit.estimate_offsets`:
+            held, or the start of their estimate with ``options.offsets == "estimate"``.
     """
 
     def __init__(
@@ -185,6 +201,18 @@ class BodyGraph:
         self.focal_cameras = [
             c for c in model.observed_cameras() if options.focal == "all" or (options.focal == "guessed" and model.cameras[c].focal_guessed)
         ]
+        # per focal camera, the camera whose focal variable it uses (itself, or the first one
+        # guessed alike with focal_shared)
+        self.focal_leader: dict[int, int] = {}
+        for c in self.focal_cameras:
+            cam = self.model.cameras[c]
+            alike = [d for d in self.focal_leader if options.focal_shared and cam.focal_guessed and self.model.cameras[d].focal_guessed
+                     and np.allclose(self.model.cameras[d].K, cam.K)]  # fmt: skip
+            self.focal_leader[c] = self.focal_leader[alike[0]] if alike else c
+        # the detector formats whose offsets are variables, with their parametrisation
+        self.format_index = {fmt: f for f, fmt in enumerate(model.formats)}
+        bases = {fmt: offset_basis(body.table(body.default_shape, keypoints=fmt), options.offset_parts) for fmt in self.format_index if fmt != "body" and options.offsets == "estimate"}
+        self.offset_bases = {fmt: basis for fmt, basis in bases.items() if basis.shape[-1]}
         self.windows: list[int] = []
         # per state, its reprojection factors' labellings and the observations they cover
         self.labellings: dict[int, list[tuple[Labelling, list[Observation]]]] = {}
@@ -197,7 +225,13 @@ class BodyGraph:
 
     def cache(self, fmt: str) -> ShapeTableCache:
         if fmt not in self.caches:
-            self.caches[fmt] = ShapeTableCache(self.body, fmt, offsets=self.keypoint_offsets.get(fmt))
+            if fmt in self.offset_bases:
+                # the given offsets the parameters cannot express stay, held
+                held = self.keypoint_offsets.get(fmt)
+                held = None if held is None else held - self.offset_bases[fmt] @ offset_parameters(self.offset_bases[fmt], held)
+                self.caches[fmt] = ShapeTableCache(self.body, fmt, offsets=held, offset_basis=self.offset_bases[fmt])
+            else:
+                self.caches[fmt] = ShapeTableCache(self.body, fmt, offsets=self.keypoint_offsets.get(fmt))
         return self.caches[fmt]
 
     def camera_vars(self, states: range | None = None) -> dict[int, tuple[int, int]]:
@@ -224,8 +258,25 @@ class BodyGraph:
         for key, (c, j) in self.camera_vars(states).items():
             values.insert(key, gtsam.Pose3(estimate.cameras[c][j]))
         for c in self.focal_cameras:
-            values.insert(focal_key(c), np.array([estimate.focal_log[c]]))
+            if self.focal_leader[c] == c:
+                shared = [d for d in self.focal_cameras if self.focal_leader[d] == c]
+                values.insert(focal_key(c), np.array([np.mean(estimate.focal_log[shared])]))
+        for fmt, basis in self.offset_bases.items():
+            start = self.keypoint_offsets.get(fmt, np.zeros(basis.shape[:2]))
+            values.insert(self.offset_key(fmt), offset_parameters(basis, start))
         return values
+
+    def offset_key(self, fmt: str) -> int:
+        """The key of detector format ``fmt``'s offset parameters."""
+        return keypoint_offset_key(self.format_index[fmt])
+
+    def offsets(self, values: gtsam.Values) -> dict[str, np.ndarray]:
+        """Per detector format, ``(K, 3)`` its keypoint offsets (metres, carrier frames): the
+        estimated ones in ``values``, else the ones given."""
+        out = dict(self.keypoint_offsets)
+        for fmt, basis in self.offset_bases.items():
+            out[fmt] = self.keypoint_offsets.get(fmt, 0.0) + basis @ (values.atVector(self.offset_key(fmt)) - offset_parameters(basis, self.keypoint_offsets.get(fmt, np.zeros(basis.shape[:2]))))
+        return out
 
     def read(self, values: gtsam.Values, start: Estimate, states: range | None = None) -> Estimate:
         """The estimate in ``values`` over ``states`` (default all); everything else from ``start``."""
@@ -242,7 +293,7 @@ class BodyGraph:
         if self.shape_key is not None:
             estimate.shape = values.atVector(shape_key())
         for c in self.focal_cameras:
-            estimate.focal_log[c] = values.atVector(focal_key(c))[0]
+            estimate.focal_log[c] = values.atVector(focal_key(self.focal_leader[c]))[0]
         for c in self.estimated:
             frames = self.model.camera_frames(c, states)
             if len(frames) == 0:
@@ -285,7 +336,8 @@ class BodyGraph:
                     np.stack([self.model.cameras[o.camera].intrinsics for o in obs]), np.stack([o.observed for o in obs]),
                     np.stack([o.weights for o in obs]), fmt, self.scale, noise_px=self.options.noise_px,
                     fixed_shape=self.fixed_shape, labelling=labelling,
-                    focal_keys=[focal_key(o.camera) if o.camera in self.focal_cameras else None for o in obs], **between,
+                    focal_keys=[focal_key(self.focal_leader[o.camera]) if o.camera in self.focal_leader else None for o in obs],
+                    offset_key=self.offset_key(fmt) if fmt in self.offset_bases else None, **between,
                 )  # fmt: skip
             )
         self.add_pose_priors(graph, i)
@@ -372,8 +424,14 @@ class BodyGraph:
     def add_focal_priors(self, graph: gtsam.NonlinearFactorGraph) -> None:
         """Each variable focal length near the given one: ``s ~ N(0, focal_sigma_log²)``."""
         noise = gtsam.noiseModel.Isotropic.Sigma(1, self.options.focal_sigma_log)
-        for c in self.focal_cameras:
+        for c in sorted(set(self.focal_leader.values())):
             graph.add(gtsam.PriorFactorVector(focal_key(c), np.zeros(1), noise))
+
+    def add_offset_priors(self, graph: gtsam.NonlinearFactorGraph) -> None:
+        """Each estimated offset parameter near zero: ``θ ~ N(0, offset_sigma_m²)``."""
+        for fmt, basis in self.offset_bases.items():
+            noise = gtsam.noiseModel.Isotropic.Sigma(basis.shape[-1], self.options.offset_sigma_m)
+            graph.add(gtsam.PriorFactorVector(self.offset_key(fmt), np.zeros(basis.shape[-1]), noise))
 
     def focal_lengths(self, estimate: Estimate) -> dict[str, float]:
         """``{camera name: fx}`` in pixels of the cameras whose focal length was estimated."""
@@ -420,6 +478,7 @@ class BodyGraph:
                 self.add_smoothness(graph, i)
         self.add_shape_prior(graph)
         self.add_focal_priors(graph)
+        self.add_offset_priors(graph)
         self.add_camera_smoothness(graph)
         if ground:
             self.add_camera_ground(graph)
