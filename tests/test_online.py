@@ -107,6 +107,7 @@ def test_bad_input_is_one_clear_error(rich):
         OnlineFusion(static_rig(rich), OnlineOptions(lag_s=0.01))
 
 
+@pytest.mark.slow  # 9 s: an AirCap bootstrap and stream
 def test_aircap_rig_against_its_batch_bootstrap():
     """A UAV rig: cameras held at the onboard estimate; the smoothed body as accurate as the
     offline sequence fit with the cameras held at the same estimate (GPS-limited: ~0.5 m)."""
@@ -176,6 +177,7 @@ def rich_long():
     return synthesize("rich", seed=0, duration_s=4.0, detector_faults="none")
 
 
+@pytest.mark.slow  # 5 s on a longer stream
 def test_camera_silent_longer_than_the_lag_recovers(rich_long):
     """The handheld camera (a moving, uncalibrated one: a pose per frame) stops for 1.2 s, more than
     twice the lag, and comes back: the loop runs through, the other cameras carry the body, and the
@@ -201,6 +203,7 @@ def test_camera_silent_longer_than_the_lag_recovers(rich_long):
     assert m["mpjpe_m"] < 0.05 and m["mcpe_m.handheld"] < 0.3
 
 
+@pytest.mark.slow  # 5 s on a longer stream
 def test_person_out_of_every_view_then_back(rich_long):
     """No camera sees the person for 0.6 s: the states there are flagged unconstrained (they keep
     the tracker's prediction, held after coast_s), and the loop re-acquires the body when the
