@@ -119,6 +119,7 @@ def test_camera_without_detections_or_gps_is_reported_not_fatal(capture, caplog)
     assert np.isfinite(result.joints).all()
 
 
+@pytest.mark.slow  # 9 s: a whole AirCap run; the repair itself is tested in test_capture
 def test_camera_clock_going_backwards_is_repaired_and_reported(capture, tmp_path, caplog):
     """uav2's clock jumps back 0.3 s at frame 40: the loader drops the frames not later than an
     earlier one, the run says so (stderr and the result's notes) and still fits the body."""

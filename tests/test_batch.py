@@ -80,6 +80,7 @@ def test_registry_entries_name_what_their_modules_hold():
         assert callable(entry.attribute("run")) and callable(entry.attribute("summary")), name
 
 
+@pytest.mark.slow  # 6 s: Ray's start; Ray against local is also in test_executors
 def test_batch_on_ray_writes_what_the_local_pool_writes(captures, tmp_path):
     """Ray's workers import the package afresh (no fork) and send the outcomes back by pickle."""
     local = run_batch("baseline", captures, tmp_path / "local", workers=1)

@@ -62,6 +62,7 @@ def test_late_observations_used_within_the_lag_dropped_beyond(rich):
     assert fusion.stats.late_used == 2 and fusion.stats.used == before + 2
 
 
+@pytest.mark.slow  # 5 s: a stream of its own
 def test_the_window_stays_bounded(rich):
     fusion = OnlineFusion(static_rig(rich), OPTIONS)
     most = 0
