@@ -172,3 +172,21 @@ def test_estimate_moves_rigidly(body):
     np.testing.assert_allclose(moved.roots, A @ est.roots)
     np.testing.assert_allclose(moved.cameras[1], A @ est.cameras[1])
     np.testing.assert_array_equal(moved.poses, est.poses)
+
+
+def test_whole_body_relabelling_allowed_where_a_camera_cannot_go_round(body):
+    """The static camera may relabel its whole body; the moving one only with
+    ``moving_body_swaps`` or when it is held (AirPose's reference); limbs everywhere."""
+    from mocapgraph.body.labelling import SWAP_KINDS
+
+    whole = SWAP_KINDS.index("body")
+
+    def allowed(bg):
+        bg.add_state(gtsam.NonlinearFactorGraph(), 0)
+        ((labelling, obs),) = bg.labellings[0]
+        return {bg.model.cameras[o.camera].name: labelling.allowed[row] for row, o in enumerate(obs)}
+
+    free = allowed(body_graph(body))
+    assert free["static"].all() and not free["moving"][whole] and np.delete(free["moving"], whole).all()
+    held = allowed(body_graph(body, fixed_cameras={1: np.tile(np.eye(4), (6, 1, 1))}))
+    assert held["moving"].all()

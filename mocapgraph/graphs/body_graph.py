@@ -327,7 +327,7 @@ class BodyGraph:
                 whole = SWAP_KINDS.index("body")
                 allowed = np.ones((len(obs), len(SWAP_KINDS)), dtype=bool)
                 if not self.options.moving_body_swaps:
-                    allowed[[self.model.cameras[o.camera].moving and held is None for o, held in zip(obs, fixed)], whole] = False
+                    allowed[[self.model.cameras[o.camera].moving and pose is None for o, pose in zip(obs, fixed)], whole] = False
                 labelling = Labelling(self.permutations(fmt), 0.5 * self.options.swap_cost_sigmas**2, allowed=allowed)
                 self.labellings[i].append((labelling, obs))
             graph.add(
