@@ -95,6 +95,7 @@ def test_person_out_of_every_view_for_a_while(capture):
     assert metrics["ra_mpjpe_m"] < 0.15
 
 
+@pytest.mark.slow  # 7 s: two per-frame passes; test_executors covers the fork executor
 def test_per_frame_pass_in_two_processes_matches_one(faultless):
     """The spans solved in forked workers give the serial answer: exactly on the first span
     (same warm starts), and to within a few millimetres after the second span's cold start."""

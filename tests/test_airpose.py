@@ -42,6 +42,7 @@ def test_airpose_plus_improves_on_the_initialiser(both, capture):
     assert camera2_position_error_m(plus, capture) < 1.5  # camera 2 is about 12 m away
 
 
+@pytest.mark.slow  # 6 s: the regressor is tested on its own in test_fusion_regressor
 def test_regressor_initialiser_then_airpose_plus(capture):
     """AirPose's own initialiser (the fusion regressor) also converges under AirPose+."""
     result, m = run(capture, initialiser="regressor", covariances=False)
@@ -83,6 +84,7 @@ def test_frames_with_too_little_confidence_are_left_out(capture):
     assert metrics["pa_mpjpe_m"] < 0.05
 
 
+@pytest.mark.slow  # 8 s: a whole AirPose+ run through the command line
 def test_command_line(capture, tmp_path, capsys):
     cap_dir = write_capture(capture, tmp_path / "cap")
     assert main(["run", "airpose", str(cap_dir), "--out", str(tmp_path / "res"), "--initialiser", "pnp", "--quiet", "--no-covariances"]) == 0

@@ -145,6 +145,7 @@ def _state_error_m(fusion, capture, k) -> float:
     return float(np.linalg.norm(align.apply(joints([k])[0]) - truth([k])[0], axis=-1).mean())
 
 
+@pytest.mark.slow  # 8 s: two full streams
 def test_filtered_states_use_no_later_observation(rich):
     """The filtered state of time t is the same, to the last bit, whatever the stream holds after t."""
     frames = list(stream(rich))

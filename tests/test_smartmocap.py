@@ -152,6 +152,7 @@ def test_all_cameras_moving_runs_and_says_so():
     assert np.isfinite(result.joints).all() and m["pa_mpjpe_m"] < 0.08
 
 
+@pytest.mark.slow  # 6 s: a whole SmartMocap run for one note
 def test_person_standing_still_flags_the_ground_tilt():
     cap = synthesize("rich", seed=2, duration_s=1.0, motion="stand")
     result, m = run(cap, covariances=False)
