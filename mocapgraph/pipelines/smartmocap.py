@@ -189,9 +189,12 @@ def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
         # Labels are re-decided only once the body is free: against the initial mean body (held
         # in the first two phases) a camera seen from the side "fits" swapped as often as not.
         bg.relabel(k == len(phases) - 1)
-        # The first phase anneals from L2 to Geman-McClure; the later ones start near the solution
-        # and stay robust (an L2 stage each cost a third of a chunk's solves for nothing, measured).
-        stages = bg.stages(o.chunk_iterations, ordering)[0 if k == 0 else 1 :]
+        # A phase that frees body variables from the mean body anneals from L2 to Geman-McClure:
+        # a limb far from the mean pose (a bent elbow puts the wrist 60-100 px off on the real
+        # clip) lies in the kernel's flat tail, where nothing pulls it in; the roots' phase
+        # starts near its solution and stays robust (an L2 stage there cost a third of a
+        # chunk's solves for nothing, measured).
+        stages = bg.stages(o.chunk_iterations, ordering)[1 if k == 1 else 0 :]
         values = solve_staged(held(graph, values, keys), values, stages, project=bg.project_shape).values
     return bg.read(values, task.start), time.perf_counter() - t0
 
