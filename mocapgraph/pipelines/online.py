@@ -824,10 +824,11 @@ class OnlineFusion:
         )
         self.stats.used += 1
         self._last_observed = max(self._last_observed, i + (1 if a else 0))
-        count = int(np.count_nonzero(weights))
-        self.detections[i] = self.detections.get(i, 0) + count
-        if a:
-            self.detections[i + 1] = self.detections.get(i + 1, 0) + count
+        if self.record:
+            count = int(np.count_nonzero(weights))
+            self.detections[i] = self.detections.get(i, 0) + count
+            if a:
+                self.detections[i + 1] = self.detections.get(i + 1, 0) + count
 
     def _flush(self) -> None:
         """Close the open interval: create the states up to its end and update the smoother."""
