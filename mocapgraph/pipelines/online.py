@@ -38,6 +38,13 @@ A moving uncalibrated camera whose frames all left the window is resected on the
 returns. An observation later than the open interval but whose states are still in the window is used; an
 older one is counted and dropped (as is a frame more than the lag older than its camera's newest).
 
+**Faults.** A static camera of an uncalibrated rig that the bootstrap did not see joins when its
+first ``join_frames`` frames, resected together on the body, place it. A UAV camera's frame without
+its onboard estimate near its time (an outage) is not used (``no_prior``). A smoother update that
+throws (GTSAM's indeterminant-system error, ...) restarts the window from the tracker's prediction
+(``solver_resets``). The results' per-state flags say which states saw such faults:
+``no_camera_prior``, ``solver_reset`` (with ``unconstrained``: no detection at all).
+
 **Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
 after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
 created inside a gap keeps its prediction. The *smoothed* one holds each state at its last
@@ -210,7 +217,8 @@ class OnlineState:
     Attributes:
         index, time: the state's index on the grid and its time, seconds (None during the bootstrap).
         root: ``(4, 4)`` world_T_root; pose: ``(21, 3)`` axis-angle; shape: ``(S,)``.
-        cameras: by camera name, its newest ``(4, 4)`` world_T_camera.
+        cameras: by camera name, its newest ``(4, 4)`` world_T_camera (NaN while a UAV camera has
+            no onboard estimate: its frames are then not used).
         updated: whether this call ran a smoother update.
     """
 
