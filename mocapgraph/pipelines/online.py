@@ -137,9 +137,10 @@ class OnlineOptions:
     # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
     # MPJPE 137 -> 31 mm, filtered 233 -> 32 mm). No whole-body relabelling of moving cameras:
     # decided once, at a new state's prediction, it turned the body round (aircap 10 s: 216 of
-    # 267 relabellings not in the truth, RA-MPJPE 0.19 -> 0.11 m without; docs/online.md).
+    # 267 relabellings not in the truth, RA-MPJPE 0.19 -> 0.11 m without; docs/online.md), nor
+    # in the AirCap bootstrap's batch solve, where the UAV cameras are held (held_body_swaps).
     graph: GraphOptions = field(
-        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False)
+        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False, held_body_swaps=False)
     )
 
     def check(self) -> None:
