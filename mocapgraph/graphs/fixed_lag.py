@@ -164,7 +164,9 @@ class FixedLagSmoother:
 
     def update(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: dict[int, float], keep: list[int] = ()) -> UpdateReport:
         """Add ``factors`` and the new variables ``values`` (their ``timestamps``, seconds), keep
-        the keys ``keep`` in the window at the newest timestamp, and re-solve incrementally."""
+        the keys ``keep`` in the window at the newest timestamp, and re-solve incrementally.
+        When iSAM2 throws (a ``RuntimeError``, e.g. an indeterminant system) the smoother is not
+        to be used again: the online loop starts a new one."""
         newest = max(self.newest, max(timestamps.values(), default=-np.inf))
         stamps = {int(k): float(t) for k, t in timestamps.items()}
         kept = [int(k) for k in keep]
