@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import gtsam
 import numpy as np
 import pytest
@@ -190,3 +192,8 @@ def test_whole_body_relabelling_allowed_where_a_camera_cannot_go_round(body):
     assert free["static"].all() and not free["moving"][whole] and np.delete(free["moving"], whole).all()
     held = allowed(body_graph(body, fixed_cameras={1: np.tile(np.eye(4), (6, 1, 1))}))
     assert held["moving"].all()
+    # unless held_body_swaps says no (the online loop's AirCap bootstrap)
+    bg = body_graph(body, fixed_cameras={1: np.tile(np.eye(4), (6, 1, 1))})
+    bg.options = dataclasses.replace(bg.options, held_body_swaps=False)
+    refused = allowed(bg)
+    assert refused["static"].all() and not refused["moving"][whole] and np.delete(refused["moving"], whole).all()

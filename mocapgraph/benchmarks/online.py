@@ -6,6 +6,11 @@ memory at the start and the end of the stream, MPJPE / RA-MPJPE / MCPE of the fi
 the smoothed trajectory and of the offline pipeline on the same capture (its default options).
 Also the relinearisation policies (:class:`~mocapgraph.graphs.fixed_lag.Relinearisation`) on 6 s
 of each, with the smoother updates that fell back to an iSAM2 batch step (every factor relinearised).
+
+With ``long_s`` (``--long 600``) instead: one long ``rich`` stream through an
+:class:`~mocapgraph.pipelines.online.OnlineFusion` that keeps only its window (``record=False``),
+with the resident memory and the latency (wall and CPU time) per minute, and each minute's against
+the first's (issue 15: memory within 5 %, p95 within 10 %).
 """
 
 from __future__ import annotations
@@ -13,10 +18,12 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
+import numpy as np
+
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.graphs.fixed_lag import Relinearisation
-from mocapgraph.pipelines.online import OnlineOptions, run_online
+from mocapgraph.pipelines.online import OnlineFusion, OnlineOptions, run_online, static_rig, stream
 
 REPORTED = ("mpjpe_m", "ra_mpjpe_m", "mcpe_m")
 POLICIES = {
@@ -51,13 +58,47 @@ def _online(capture, options: OnlineOptions) -> dict:
     s = run.stats.summary()
     return {
         "updates_per_s": s["updates_per_s"], "latency_ms": s["latency_ms"], "observations_per_s": s["observations_per_s"],
-        "bootstrap_s": s["bootstrap_s"], "solve_ms_p95": s["solve_ms_p95"], "batch_steps": s["batch_steps"], "updates": s["updates"], "dropped": run.stats.dropped, "late_dropped": s["late_dropped"], "gated": s["gated"],
+        "latency_cpu_ms": s["latency_cpu_ms"], "bootstrap_s": s["bootstrap_s"], "solver_resets": s["solver_resets"], "solve_ms_p95": s["solve_ms_p95"], "batch_steps": s["batch_steps"], "updates": s["updates"], "dropped": run.stats.dropped, "late_dropped": s["late_dropped"], "gated": s["gated"],
         "resident_mb": {**memory, "end_mb": round(_resident_mb(), 1)},
         "filtered": _metrics(run.filtered, capture), "smoothed": _metrics(run.smoothed, capture),
     }  # fmt: skip
 
 
-def bench_online(duration_s: float = 20.0, seed: int = 0, lag_s: float = 1.0) -> dict:
+def _percentiles_ms(seconds: list[float]) -> dict:
+    ms = np.asarray(seconds) * 1e3
+    return {"p50": round(float(np.percentile(ms, 50)), 2), "p95": round(float(np.percentile(ms, 95)), 2), "max": round(float(ms.max()), 2)}
+
+
+def bench_online_long(duration_s: float, seed: int = 0, lag_s: float = 1.0) -> dict:
+    """One ``duration_s`` stream of a ``rich`` capture, measured per minute (see the module docstring)."""
+    capture = synthesize("rich", seed=seed, duration_s=duration_s)
+    fusion = OnlineFusion(static_rig(capture), OnlineOptions(lag_s=lag_s), record=False)
+    minutes, start = [], 0
+    for frame in stream(capture):
+        fusion.update(frame.camera, frame.timestamp, frame.keypoints, frame.box, frame.sensors, frame.detector)
+        if frame.timestamp - capture.cameras[0].timestamps[0] >= 60.0 * (len(minutes) + 1):
+            wall, cpu = fusion.stats.latencies[start:], fusion.stats.cpu_latencies[start:]
+            minutes.append({"resident_mb": round(_resident_mb(), 1), "updates": len(wall), "latency_ms": _percentiles_ms(wall), "latency_cpu_ms": _percentiles_ms(cpu)})
+            start = len(fusion.stats.latencies)
+    fusion.finish()
+    first = minutes[0]
+    for m in minutes:
+        m["memory_change_pct"] = round(100 * (m["resident_mb"] / first["resident_mb"] - 1), 2)
+        m["p95_change_pct"] = round(100 * (m["latency_ms"]["p95"] / first["latency_ms"]["p95"] - 1), 1)
+        m["cpu_p95_change_pct"] = round(100 * (m["latency_cpu_ms"]["p95"] / first["latency_cpu_ms"]["p95"] - 1), 1)
+    s = fusion.stats.summary()
+    return {
+        "duration_s": duration_s, "seed": seed, "lag_s": lag_s, "capture": "rich", "updates": s["updates"], "updates_per_s": s["updates_per_s"],
+        "latency_ms": s["latency_ms"], "latency_cpu_ms": s["latency_cpu_ms"], "batch_steps": s["batch_steps"], "solver_resets": s["solver_resets"],
+        "dropped": fusion.stats.dropped, "window_keys_end": len(fusion.smoother.timestamps), "minutes": minutes,
+        "memory_change_max_pct": max(abs(m["memory_change_pct"]) for m in minutes),
+        "p95_change_max_pct": max(abs(m["p95_change_pct"]) for m in minutes), "cpu_p95_change_max_pct": max(abs(m["cpu_p95_change_pct"]) for m in minutes),
+    }  # fmt: skip
+
+
+def bench_online(duration_s: float = 20.0, seed: int = 0, lag_s: float = 1.0, long_s: float = 0.0) -> dict:
+    if long_s:
+        return bench_online_long(long_s, seed, lag_s)
     from mocapgraph.pipelines.aircap import run_aircap
     from mocapgraph.pipelines.smartmocap import run_smartmocap
 
@@ -74,5 +115,5 @@ def bench_online(duration_s: float = 20.0, seed: int = 0, lag_s: float = 1.0) ->
         out[f"relinearisation_{preset}"] = {}
         for name, policy in POLICIES.items():
             r = _online(capture, replace(OnlineOptions(lag_s=lag_s), relinearisation=policy))
-            out[f"relinearisation_{preset}"][name] = {k: r[k] for k in ("updates_per_s", "latency_ms", "batch_steps", "updates", "filtered", "smoothed")}
+            out[f"relinearisation_{preset}"][name] = {k: r[k] for k in ("updates_per_s", "latency_ms", "latency_cpu_ms", "batch_steps", "updates", "filtered", "smoothed")}
     return out

@@ -25,7 +25,8 @@ BENCHES = {
     ),
     "online": (
         "the online loop (fixed-lag iSAM2) on aircap and rich: updates/s, latency, memory, filtered/smoothed/offline errors",
-        "mocapgraph.benchmarks.online:bench_online", {"lag_s": ("smoother window, seconds", {"flag": "--lag"})},
+        "mocapgraph.benchmarks.online:bench_online",
+        {"lag_s": ("smoother window, seconds", {"flag": "--lag"}), "long_s": ("instead: one stream this long (e.g. 600), memory and latency per minute", {"flag": "--long"})},
     ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (

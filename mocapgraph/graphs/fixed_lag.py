@@ -1,10 +1,11 @@
-"""GTSAM's incremental fixed-lag smoother (iSAM2 inside), as the online loop drives it.
+"""A fixed-lag smoother on GTSAM's iSAM2, as the online loop drives it.
 
-:class:`FixedLagSmoother` wraps ``gtsam.IncrementalFixedLagSmoother``: every key carries a
-timestamp (seconds); an update marginalises the keys older than the newest timestamp minus the
-lag, so the graph, and the cost of an update, stay bounded however long the stream runs. A key
-that all times share (a static camera, a camera's GPS offset) stays in the window by being given
-the newest timestamp again at every update (:meth:`FixedLagSmoother.update`'s ``keep``).
+:class:`FixedLagSmoother`: every key carries a timestamp (seconds); an update marginalises the
+keys older than the newest timestamp minus the lag, so the graph, and the cost of an update, stay
+bounded however long the stream runs. A key that all times share (a static camera, a camera's GPS
+offset) stays in the window by being given the newest timestamp again at every update
+(:meth:`FixedLagSmoother.update`'s ``keep``). It does what GTSAM's ``IncrementalFixedLagSmoother``
+does, with the elimination order kept in time (the class docstring says why).
 
 Two things the GTSAM performance notes (``notes/gtsam_performance.md`` §3) measured:
 
@@ -19,6 +20,7 @@ Two things the GTSAM performance notes (``notes/gtsam_performance.md`` §3) meas
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 
@@ -26,6 +28,12 @@ import gtsam
 import numpy as np
 
 from mocapgraph.errors import MocapgraphError
+
+log = logging.getLogger(__name__)
+
+
+# iSAM2's batch-step threshold (0.65, ISAM2.cpp's kBatchThreshold) with a margin either side
+_BATCH_MARGIN = (0.6, 0.7)
 
 
 @dataclass(frozen=True)
@@ -92,6 +100,7 @@ class UpdateReport:
     Attributes:
         seconds: wall time of the iSAM2 update(s).
         relinearised: variables iSAM2 relinearised in the first pass.
+        reeliminated: variables iSAM2 eliminated again in the first pass (new ones included).
         batch: whether iSAM2's first pass fell back to a batch step (re-ordered and relinearised
             every factor in the window: more than 65 % of its variables were affected).
         marginalised: keys that left the window (their last estimates are in ``left``).
@@ -102,14 +111,26 @@ class UpdateReport:
 
     seconds: float
     relinearised: int
+    reeliminated: int
     batch: bool
     marginalised: list[int]
     left: gtsam.Values
 
 
 class FixedLagSmoother:
-    """An ``IncrementalFixedLagSmoother`` of ``lag_s`` seconds with the ``relinearisation`` policy;
-    ``dims``: the tangent dimension of each key character the graph uses (for ``per_type``).
+    """A fixed-lag smoother of ``lag_s`` seconds on ``gtsam.ISAM2`` with the ``relinearisation``
+    policy; ``dims``: the tangent dimension of each key character the graph uses (for ``per_type``).
+
+    GTSAM's ``IncrementalFixedLagSmoother`` constrains iSAM2's elimination order only to put the
+    keys leaving the window first; CCOLAMD then placed a state from the middle of the window near
+    the Bayes tree's root, and when it left, re-eliminating its subtree touched more than 65 % of
+    the variables: iSAM2 fell back to a batch step (every factor linearised again, ~10x an
+    update's cost: the latency's p95 on ``rich``). Here every update orders the variables it
+    re-eliminates by their timestamps (older first, the leaving ones before all), so the tree is
+    a chain with the newest states at its root: a new state re-eliminates only the cliques near
+    the root, and the oldest keys are always leaves that ``marginalizeLeaves`` can remove. Keys
+    kept at the newest timestamp are re-eliminated at every update so that none stays below a
+    leaving key.
 
     Attributes:
         lag_s: the window, seconds.
@@ -127,7 +148,7 @@ class FixedLagSmoother:
         params.findUnusedFactorSlots = True
         self.lag_s = float(lag_s)
         self.relinearisation = relinearisation
-        self.smoother = gtsam.IncrementalFixedLagSmoother(self.lag_s, params)
+        self.isam = gtsam.ISAM2(params)
         self.estimate = gtsam.Values()
         self.timestamps: dict[int, float] = {}
         self._linearization_point = None  # held: see the module docstring
@@ -143,37 +164,81 @@ class FixedLagSmoother:
 
     def update(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: dict[int, float], keep: list[int] = ()) -> UpdateReport:
         """Add ``factors`` and the new variables ``values`` (their ``timestamps``, seconds), keep
-        the keys ``keep`` in the window at the newest timestamp, and re-solve incrementally."""
+        the keys ``keep`` in the window at the newest timestamp, and re-solve incrementally.
+        When iSAM2 throws (a ``RuntimeError``, e.g. an indeterminant system) the smoother is not
+        to be used again: the online loop starts a new one."""
         newest = max(self.newest, max(timestamps.values(), default=-np.inf))
         stamps = {int(k): float(t) for k, t in timestamps.items()}
-        stamps.update({int(k): newest for k in keep})
+        kept = [int(k) for k in keep]
+        stamps.update({k: newest for k in kept})
         bound = newest - self.lag_s
-        leaving = [k for k, t in self.timestamps.items() if t < bound and k not in stamps]
+        self.timestamps.update(stamps)
+        leaving = [k for k, t in self.timestamps.items() if t < bound]
         left = _subset(self.estimate, leaving)
         # new variables already older than the window leave in this very update, at their start
-        left.insert(_subset(values, [k for k, t in stamps.items() if t < bound and not self.estimate.exists(k)]))
+        left.insert(_subset(values, [k for k in leaving if not self.estimate.exists(k)]))
         start = time.perf_counter()
-        self.smoother.update(factors, values, stamps)
-        first = self.smoother.getISAM2Result()
-        relinearised, batch = int(first.getVariablesRelinearized()), bool(first.getBatchReorderTriggered())
+        first = self._step(factors, values, [k for k in kept if self.estimate.exists(k)], set(leaving))
+        relinearised, reeliminated, batch = int(first.getVariablesRelinearized()), int(first.getVariablesReeliminated()), bool(first.getBatchReorderTriggered())
         for _ in range(self.relinearisation.extra_updates):
-            self.smoother.update()
+            self._step(gtsam.NonlinearFactorGraph(), gtsam.Values(), [], set(leaving))
+        if leaving:
+            out = gtsam.KeyList()
+            for k in leaving:
+                out.push_back(k)
+            self.isam.marginalizeLeaves(out)
         seconds = time.perf_counter() - start
         if self._linearization_point is None:
-            self._linearization_point = self.smoother.getLinearizationPoint()
-        self.timestamps.update(stamps)
-        window = set(self.smoother.timestamps().keys())
-        gone = [k for k in self.timestamps if k not in window]
-        for k in gone:
+            self._linearization_point = self.isam.getLinearizationPoint()
+        for k in leaving:
             del self.timestamps[k]
-        self.estimate = self.smoother.calculateEstimate()
-        return UpdateReport(seconds, relinearised, batch, gone, left)
+        self.estimate = self.isam.calculateEstimate()
+        return UpdateReport(seconds, relinearised, reeliminated, batch, leaving, left)
+
+    def _step(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, reeliminate: list[int], leaving: set[int]) -> gtsam.ISAM2Result:
+        """One iSAM2 update with its elimination constrained: the ``leaving`` keys in group 0,
+        the others by their timestamps (older first); ``reeliminate``: keys to re-order anyway.
+
+        CCOLAMD reads a group number as an index below the number of variables it orders (a
+        larger one corrupts memory), and iSAM2 passes it only those the update affects: the
+        groups number the timestamps of the affected keys (iSAM2's prediction) densely. iSAM2
+        re-orders the whole window instead (a batch step) when the variables it re-eliminates,
+        new ones aside, are 65 % of the window or more; close to that line the whole window is
+        marked, so that the step is a batch one for certain and every key is numbered."""
+        marked = gtsam.KeyList()
+        for k in reeliminate:
+            marked.push_back(k)
+        params = gtsam.ISAM2UpdateParams()
+        params.extraReelimKeys = marked
+        # the relinearisation check reads the solution's delta, which iSAM2 back-substitutes only
+        # when asked: the prediction read a stale one after an update without an estimate
+        self.isam.getDelta()
+        affected, _ = self.isam.predictUpdateInfo(factors, values, params)
+        new = set(values.keys())
+        old = sum(1 for k in affected if k not in new)
+        batch = old >= _BATCH_MARGIN[0] * len(self.timestamps)
+        if batch and old < _BATCH_MARGIN[1] * len(self.timestamps):
+            for k in self.timestamps:
+                if k not in new:
+                    marked.push_back(k)
+        numbered = set(self.timestamps) if batch else {*affected, *new}
+        first = 1 if leaving & numbered else 0
+        rank = {t: first + r for r, t in enumerate(sorted({self.timestamps[k] for k in numbered if k not in leaving}))}
+        groups = gtsam.KeyGroupMap()
+        # the keys not numbered: dropped by iSAM2 in an incremental step; in a batch step that
+        # was not foreseen, after the leaving ones at least
+        for k, t in self.timestamps.items():
+            groups.insert2(k, 0 if k in leaving else rank[t] if k in numbered else 1)
+        result = self.isam.update(factors, values, [], groups, None, marked, False)
+        if result.getBatchReorderTriggered() != batch:
+            log.warning("fixed-lag smoother: iSAM2 %s a batch step, not as foreseen (%d keys in the window)", "took" if not batch else "did not take", len(self.timestamps))
+        return result
 
     def marginal_covariance(self, key: int) -> np.ndarray:
         """The marginal covariance of ``key`` in the window, in its tangent space."""
         if key not in self.timestamps:
             raise MocapgraphError(f"key {gtsam.DefaultKeyFormatter(key)} is not in the smoother's window")
-        return np.asarray(self.smoother.marginalCovariance(key))
+        return np.asarray(self.isam.marginalCovariance(key))
 
 
 def _subset(values: gtsam.Values, keys: list[int]) -> gtsam.Values:

@@ -36,8 +36,14 @@ fewer than ``gate_min_keypoints`` is dropped and counted. After ``coast_s`` with
 track is lost: the gate stays open and the next state starts where its views triangulate the body.
 A moving uncalibrated camera whose frames all left the window is resected on the body when it
 returns. An observation later than the open interval but whose states are still in the window is used; an
-older one is counted and dropped. A camera whose own clock goes back by more than the lag is a
-:class:`~mocapgraph.errors.MocapgraphError`.
+older one is counted and dropped (as is a frame more than the lag older than its camera's newest).
+
+**Faults.** A static camera of an uncalibrated rig that the bootstrap did not see joins when its
+first ``join_frames`` frames, resected together on the body, place it. A UAV camera's frame without
+its onboard estimate near its time (an outage) is not used (``no_prior``). A smoother update that
+throws (GTSAM's indeterminant-system error, ...) restarts the window from the tracker's prediction
+(``solver_resets``). The results' per-state flags say which states saw such faults:
+``no_camera_prior``, ``solver_reset`` (with ``unconstrained``: no detection at all).
 
 **Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
 after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
@@ -73,7 +79,7 @@ from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojec
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_velocity_factor, root_smoothness_factor
 from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
-from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation
+from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation, UpdateReport
 from mocapgraph.graphs.initialisation import resect
 from mocapgraph.graphs.navigation import OnlineNoise, online_track
 from mocapgraph.graphs.state_model import Estimate, undistorted_keypoints
@@ -113,6 +119,12 @@ class OnlineOptions:
     gate_min_keypoints: int = 4
     gate_reacquire: int = 10
     coast_s: float = 0.5
+    # A UAV camera's frame with no sample of its onboard estimate within this of its time (a GPS
+    # or telemetry outage) is not used (counted no_prior; its states flagged no_camera_prior)
+    prior_timeout_s: float = 0.1
+    # frames of a camera that joins an uncalibrated rig after the bootstrap, resected together on
+    # the body's estimate before it is placed (a static one is then held there)
+    join_frames: int = 8
     camera_prior_white_fraction: float = 0.6
     camera_prior_kernel: str = "huber"
     online_noise: OnlineNoise = field(default_factory=OnlineNoise)
@@ -125,9 +137,10 @@ class OnlineOptions:
     # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
     # MPJPE 137 -> 31 mm, filtered 233 -> 32 mm). No whole-body relabelling of moving cameras:
     # decided once, at a new state's prediction, it turned the body round (aircap 10 s: 216 of
-    # 267 relabellings not in the truth, RA-MPJPE 0.19 -> 0.11 m without; docs/online.md).
+    # 267 relabellings not in the truth, RA-MPJPE 0.19 -> 0.11 m without; docs/online.md), nor
+    # in the AirCap bootstrap's batch solve, where the UAV cameras are held (held_body_swaps).
     graph: GraphOptions = field(
-        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False)
+        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False, held_body_swaps=False)
     )
 
     def check(self) -> None:
@@ -141,13 +154,13 @@ class OnlineOptions:
             raise MocapgraphError(f"static_cameras {self.static_cameras!r}: choose hold or refine")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
-        for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s"):
+        for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s", "prior_timeout_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
         if self.lag_s * self.rate_hz < 2:
             raise MocapgraphError(f"lag_s: the window must hold at least 2 states at {self.rate_hz} Hz, got {self.lag_s} s")
-        for name in ("gate_min_keypoints", "gate_reacquire"):
+        for name in ("gate_min_keypoints", "gate_reacquire", "join_frames"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise MocapgraphError(f"{name}: a whole number >= 1, got {getattr(self, name)!r}")
         if not 0.0 < self.camera_prior_white_fraction < 1.0:
@@ -166,11 +179,14 @@ class OnlineStats:
     gated_keypoints: int = 0
     empty: int = 0
     unplaced: int = 0
+    no_prior: int = 0  # UAV camera frames without an onboard estimate near their time, not used
+    solver_resets: int = 0  # smoother updates that threw; the window restarted from the tracker's prediction
     relabelled: int = 0
     bootstrap_seconds: float = 0.0
     bootstrap_observations: int = 0
     busy_seconds: float = 0.0  # inside update() after the bootstrap
     latencies: list[float] = field(default_factory=list)  # of the update() calls that ran a smoother update
+    cpu_latencies: list[float] = field(default_factory=list)  # the same calls' CPU time (this thread): other jobs on the machine aside
     solve_seconds: list[float] = field(default_factory=list)  # of the smoother updates alone
     relinearised: list[int] = field(default_factory=list)
     batches: int = 0  # smoother updates in which iSAM2 fell back to a batch step (every factor relinearised)
@@ -182,11 +198,13 @@ class OnlineStats:
 
     def summary(self) -> dict:
         lat = np.asarray(self.latencies) * 1e3
+        cpu = np.asarray(self.cpu_latencies) * 1e3
         return {
             "observations": self.observations, "used": self.used, "late_used": self.late_used, "late_dropped": self.late_dropped,
             "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
-            "relabelled": self.relabelled, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
+            "no_prior": self.no_prior, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
+            "latency_cpu_ms": {q: round(float(np.percentile(cpu, p)), 2) if len(cpu) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "solve_ms_p95": round(float(np.percentile(self.solve_seconds, 95)) * 1e3, 2) if self.solve_seconds else None, "batch_steps": self.batches,
             "updates_per_s": round(len(lat) / self.busy_seconds, 1) if len(lat) else None,
             "observations_per_s": round((self.observations - self.bootstrap_observations) / self.busy_seconds, 1) if self.busy_seconds else None,
@@ -200,7 +218,8 @@ class OnlineState:
     Attributes:
         index, time: the state's index on the grid and its time, seconds (None during the bootstrap).
         root: ``(4, 4)`` world_T_root; pose: ``(21, 3)`` axis-angle; shape: ``(S,)``.
-        cameras: by camera name, its newest ``(4, 4)`` world_T_camera.
+        cameras: by camera name, its newest ``(4, 4)`` world_T_camera (NaN while a UAV camera has
+            no onboard estimate: its frames are then not used).
         updated: whether this call ran a smoother update.
     """
 
@@ -270,6 +289,7 @@ class _Frame:
     pose: np.ndarray
     time: float
     labellings: list[Labelling] = field(default_factory=list)
+    no_prior: bool = False  # a UAV camera's frame without its onboard estimate
 
 
 class OnlineFusion:
@@ -302,7 +322,7 @@ class OnlineFusion:
         self.t0: float | None = None
         self.shape: np.ndarray | None = None
         self.world_frame = "capture" if self.kind == "aircap" else "ground_plane"
-        self.smoother = FixedLagSmoother(options.lag_s, options.relinearisation, {"r": 6, "q": 3 * (NUM_JOINTS - 1), "c": 6, "o": 6})
+        self.smoother = self._new_smoother()
         self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
         self._caches: dict[str, ShapeTableCache] = {}
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
@@ -324,6 +344,12 @@ class OnlineFusion:
         self._rejected = 0  # detections gated out in a row
         # states first seen again after the track was lost: their views, to re-place the body
         self._reacquiring: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]] = {}
+        # cameras joining an uncalibrated rig after the bootstrap: body points and keypoints so far
+        self._joining: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        # the last states that left the window (the tracker's velocity reads them after a restart)
+        self._recent: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # per-state flags of what the loop could not determine (results' flags)
+        self._flagged: dict[str, set[int]] = {"no_camera_prior": set(), "solver_reset": set()}
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         self._pending_stamps: dict[int, float] = {}
@@ -337,6 +363,9 @@ class OnlineFusion:
         for c, cam in enumerate(self.rig.cameras):
             if cam.extrinsics is not None and self.kind == "aircap":
                 self._fixed[c] = np.asarray(cam.extrinsics)[0]
+
+    def _new_smoother(self) -> FixedLagSmoother:
+        return FixedLagSmoother(self.options.lag_s, self.options.relinearisation, {"r": 6, "q": 3 * (NUM_JOINTS - 1), "c": 6, "o": 6})
 
     # -- input ----------------------------------------------------------------------------------
 
@@ -354,7 +383,7 @@ class OnlineFusion:
                 capture format's sensor fields, e.g. ``{"self_pose": {"t", "rotation", "position"}}``).
             detector: the detector's name (default: the options', else the camera's first).
         """
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.thread_time()
         c = self.index.get(camera)
         if c is None:
             raise MocapgraphError(f"update: unknown camera {camera!r} (cameras: {', '.join(self.index)})")
@@ -370,12 +399,14 @@ class OnlineFusion:
         t = float(timestamp)
         if not math.isfinite(t):
             raise MocapgraphError(f"update: camera {camera!r}: timestamp must be finite, got {timestamp!r}")
-        if t < self._last_time[c] - self.options.lag_s:
-            raise MocapgraphError(
-                f"update: camera {camera!r}: timestamp {t:.3f} s goes back {self._last_time[c] - t:.3f} s, more than the lag ({self.options.lag_s} s)"
-            )
-        self._last_time[c] = max(self._last_time[c], t)
         samples = self._take_sensors(c, sensors or {})
+        if t < self._last_time[c] - self.options.lag_s:
+            # delayed by more than the lag behind the camera's own newest frame (a stalled link):
+            # whatever the window still holds, it is counted and dropped like any late frame
+            self.stats.observations += 1
+            self.stats.late_dropped += 1
+            return self.state()
+        self._last_time[c] = max(self._last_time[c], t)
         box = None if box is None else np.asarray(box, dtype=float)
         if box is not None and (box.shape not in ((4,), (5,))):
             raise MocapgraphError(f"update: camera {camera!r}: box must be (4,) or (5,), got {box.shape}")
@@ -395,6 +426,7 @@ class OnlineFusion:
         self.stats.busy_seconds += seconds
         if updated:
             self.stats.latencies.append(seconds)
+            self.stats.cpu_latencies.append(time.thread_time() - cpu_start)
         return out
 
     def _take_sensors(self, c: int, sensors: dict) -> dict:
@@ -528,7 +560,9 @@ class OnlineFusion:
         updated = False
         if self.open is not None and interval < self.open:
             needed = [i, i + 1] if a else [i]
-            if not all(self.smoother.holds(root_key(k)) or self._pending_values.exists(root_key(k)) for k in needed):
+            # states after the newest are created by the next update (the open interval jumped
+            # over this one: an observation of a later interval came first)
+            if not all(k > self.newest or self.smoother.holds(root_key(k)) or self._pending_values.exists(root_key(k)) for k in needed):
                 self.stats.late_dropped += 1
                 return False
             self.stats.late_used += 1
@@ -562,6 +596,8 @@ class OnlineFusion:
         for values in (self.smoother.estimate, self._pending_values):
             if values.exists(key):
                 return values.atPose3(key).matrix(), values.atVector(pose_key(i)).reshape(NUM_JOINTS - 1, 3)
+        if i in self._recent:
+            return self._recent[i]
         return self._predict(i)
 
     def _predict(self, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -613,6 +649,8 @@ class OnlineFusion:
             return None
         times = np.fromiter((s[0] for s in samples), float, len(samples))
         k = int(np.searchsorted(times, t))
+        if min(abs(t - times[max(k - 1, 0)]), abs(times[min(k, len(times) - 1)] - t)) > self.options.prior_timeout_s:
+            return None  # an outage: holding the last sample would hold a moving camera still
         near = [samples[j] for j in range(max(k - 2, 0), min(k + 2, len(samples)))]  # the neighbours online_track interpolates
         log_ = {"self_pose": {"t": np.array([s[0] for s in near]), "rotation": np.array([s[1] for s in near]), "position": np.array([s[2] for s in near])}}
         track = online_track(log_, cam.mount, np.array([t]), cam.name, noise=self.options.online_noise)
@@ -639,11 +677,20 @@ class OnlineFusion:
             frames[t] = _Frame(key, values.atPose3(key).matrix(), t)
             return frames[t]
         o = self.options
+        cam = self.rig.cameras[c]
+        if not cam.moving and self.kind == "smartmocap":
+            return self._join(c, t, seen)  # a static camera the bootstrap did not see
         prior = self._camera_prior(c, t) if self.kind == "aircap" else None
         seed = self._seed_cameras.get(c, {}).get(t)
+        if prior is None and seed is None and self.kind == "aircap" and cam.mount is not None:
+            # no onboard estimate near t (an outage): a UAV camera's pose from the body alone was
+            # too weak (one view of a person 10 m off; the body's error doubled on aircap), so its
+            # frames wait for the estimate to come back
+            frames[t] = _Frame(None, np.full((4, 4), np.nan), t, no_prior=True)
+            return frames[t]
         previous = max((f for f in frames.values() if f.time < t), key=lambda f: f.time, default=None)
         if prior is None and seed is None and previous is None:
-            seed = self._resect(c, *seen) if seen is not None and self.rig.cameras[c].moving else None
+            seed = self._resect(c, *seen) if seen is not None and cam.moving else None
             if seed is None:
                 return None
         if prior is not None and o.cameras == "prior":
@@ -669,6 +716,36 @@ class OnlineFusion:
             self._pending.add(camera_smoothness_factor(previous.key, key, dt, o.graph.camera_sigma_rad_s, o.graph.camera_sigma_m_s))
         frames[t] = _Frame(key, start, t)
         return frames[t]
+
+    def _join(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None) -> _Frame | None:
+        """A static camera of an uncalibrated rig that the bootstrap did not see: its first
+        ``join_frames`` frames' keypoints are resected together on the body's estimates at their
+        times (they are not used otherwise: None), then it is held there (or, with
+        ``static_cameras="refine"``, starts a variable there)."""
+        if seen is None:
+            return None
+        keypoints, fmt, i, a = seen
+        root, pose = self._body_at(i, a)
+        points = self.body.forward(self.shape, root[None], pose[None], keypoints=fmt).keypoints[0]
+        joining = self._joining.setdefault(c, [])
+        joining.append((points, keypoints))
+        if len(joining) < self.options.join_frames:
+            return None
+        cam = self.rig.cameras[c]
+        found = resect(np.concatenate([p for p, _ in joining]), np.concatenate([k for _, k in joining]), cam.K)
+        if found is None:
+            joining.pop(0)  # the oldest frames give way: the body or the detections may be better later
+            return None
+        del self._joining[c]
+        log.info("online: camera %r joined at %.2f s, placed by resection of %d frames on the body (%d inliers)", cam.name, t, self.options.join_frames, found[1])
+        if self.options.static_cameras == "hold":
+            self._fixed[c] = found[0]
+        else:
+            key = camera_key(c, 0)
+            self._static_keys[c] = key
+            self._seed_cameras[c] = {t: found[0]}
+            self._pending.add(camera_prior_factor(key, found[0], sigmas=(0.05, 0.1), kernel="none"))
+        return self._camera(c, t)
 
     def _resect(self, c: int, keypoints: np.ndarray, fmt: str, i: int, a: float) -> np.ndarray | None:
         """``(4, 4)`` world_T_camera of camera ``c`` from its keypoints and the body's current
@@ -716,6 +793,10 @@ class OnlineFusion:
         if view is None:
             self.stats.unplaced += 1
             return
+        if view.no_prior:
+            self.stats.no_prior += 1
+            self._flagged["no_camera_prior"].add(int(round(i + a)))
+            return
         # The bootstrap's states were solved on these very observations; and after a run of
         # rejections every camera's detections are taken again, as the tracker re-acquires a
         # lost track (the prediction, not the detections, is then what went wrong).
@@ -752,10 +833,11 @@ class OnlineFusion:
         )
         self.stats.used += 1
         self._last_observed = max(self._last_observed, i + (1 if a else 0))
-        count = int(np.count_nonzero(weights))
-        self.detections[i] = self.detections.get(i, 0) + count
-        if a:
-            self.detections[i + 1] = self.detections.get(i + 1, 0) + count
+        if self.record:
+            count = int(np.count_nonzero(weights))
+            self.detections[i] = self.detections.get(i, 0) + count
+            if a:
+                self.detections[i + 1] = self.detections.get(i + 1, 0) + count
 
     def _flush(self) -> None:
         """Close the open interval: create the states up to its end and update the smoother."""
@@ -782,7 +864,10 @@ class OnlineFusion:
             created.append((k, root, pose))
         keep = [*self._static_keys.values(), *self._offsets]
         keep = [k for k in keep if self.smoother.holds(k) or self._pending_values.exists(k)]
-        report = self.smoother.update(self._pending, self._pending_values, self._pending_stamps, keep=keep)
+        try:
+            report = self.smoother.update(self._pending, self._pending_values, self._pending_stamps, keep=keep)
+        except RuntimeError as error:  # GTSAM's exceptions (an indeterminant system, ...) come as RuntimeError
+            report = self._restart(error, created)
         self.stats.solve_seconds.append(report.seconds)
         self.stats.relinearised.append(report.relinearised)
         self.stats.batches += int(report.batch)
@@ -804,15 +889,58 @@ class OnlineFusion:
                 if f.key is not None and self.smoother.estimate.exists(f.key):
                     f.pose = self.smoother.estimate.atPose3(f.key).matrix()
 
+    def _restart(self, error: RuntimeError, created: list[tuple[int, np.ndarray, np.ndarray]]) -> UpdateReport:
+        """The smoother threw: its window is taken as smoothed as it is, the states this update
+        created keep the tracker's prediction (flagged ``solver_reset``), and a new window starts
+        from the newest of them, held near its prediction by a loose prior; this update's
+        observations are not used (the stream goes on from the next interval)."""
+        end = self.newest
+        root, pose = (created[-1][1], created[-1][2]) if created else self._state_guess(end)
+        log.warning("online: the smoother failed at %.2f s (%s); the window restarts from the prediction", self.t0 + end * self.period, str(error).strip().splitlines()[0])
+        self.stats.solver_resets += 1
+        old = self.smoother.estimate
+        self._retire(old)
+        # camera frames whose variables were in the failed update only
+        for c, frames in self._frames.items():
+            for t in [t for t, f in frames.items() if f.key is not None]:
+                f = frames.pop(t)
+                if self.record:
+                    self.smoothed_cameras[c][t] = f.pose
+                self._record_swaps(c, t, f)
+        for k, root, pose in created:
+            self._flagged["solver_reset"].add(k)
+            self._recent[k] = (root, pose)
+            if self.record:
+                self.smoothed[k] = (root, pose)
+        self._offsets.clear()
+        self.smoother = self._new_smoother()
+        factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(root_key(end), gtsam.Pose3(root))
+        values.insert(pose_key(end), pose.ravel())
+        factors.add(gtsam.PriorFactorPose3(root_key(end), gtsam.Pose3(root), gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, 0.2), np.full(3, 0.2)])))
+        factors.add(gtsam.PriorFactorVector(pose_key(end), pose.ravel(), gtsam.noiseModel.Isotropic.Sigma(pose.size, 0.3)))
+        stamps = {root_key(end): self.t0 + end * self.period, pose_key(end): self.t0 + end * self.period}
+        for c, key in self._static_keys.items():
+            start = old.atPose3(key) if old.exists(key) else gtsam.Pose3(next(iter(self._seed_cameras[c].values())))
+            values.insert(key, start)
+            factors.add(gtsam.PriorFactorPose3(key, start, gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+            stamps[key] = stamps[root_key(end)]
+        self._pending, self._pending_values, self._pending_stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
+        return self.smoother.update(factors, values, stamps)
+
     def _retire(self, left: gtsam.Values) -> None:
         """Record what left the window (states and camera frames) and forget it."""
         for key in left.keys():
             symbol = gtsam.Symbol(key)
             if chr(symbol.chr()) == "r":
                 k = int(symbol.index())
+                state = (left.atPose3(key).matrix(), left.atVector(pose_key(k)).reshape(NUM_JOINTS - 1, 3))
+                self._recent[k] = state
                 if self.record:
-                    self.smoothed[k] = (left.atPose3(key).matrix(), left.atVector(pose_key(k)).reshape(NUM_JOINTS - 1, 3))
+                    self.smoothed[k] = state
                 self._seed.pop(k, None)
+        for k in [k for k in self._recent if k < self.newest - 8]:
+            del self._recent[k]
         bound = self.smoother.newest - self.options.lag_s
         for c, frames in self._frames.items():
             for t in [t for t, f in frames.items() if t < bound or (f.key is not None and left.exists(f.key))]:
@@ -883,7 +1011,10 @@ class OnlineFusion:
             result = Result(
                 pipeline="online", capture=capture_label or self.rig.name, world_frame=self.world_frame, timestamps=self.t0 + idx * self.period,
                 joints=joints, body_model=self.body.name, root=roots, pose=poses, shape=self.shape.copy(),
-                flags={"num_detections": detections, "unconstrained": detections == 0, "bootstrap": idx < self._bootstrap_states},
+                flags={
+                    "num_detections": detections, "unconstrained": detections == 0, "bootstrap": idx < self._bootstrap_states,
+                    **{name: np.isin(idx, sorted(states_flagged)) for name, states_flagged in self._flagged.items()},
+                },
                 parameters={**params, "trajectory": kind},
             )  # fmt: skip
             for c, poses_c in cams.items():
