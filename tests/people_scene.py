@@ -45,7 +45,7 @@ def two_people(frames: int, fps: float) -> np.ndarray:
 class Scene:
     """Attributes:
     world: ``(2, T, 33, 3)`` the two people, metres.
-    poses: camera → ``world_T_camera (4, 4)``.
+    poses: camera → ``world_T_camera (4, 4)``, or ``(T, 4, 4)`` for a moving camera.
     K: the cameras' true intrinsics; size ``(width, height)``.
     tracks: camera → ``(2, T, 33, 3)`` pixel tracks, in the camera's own order.
     truth: camera → ``(2,)`` which person each track is (``tracks[c][i]`` shows person ``truth[c][i]``).
@@ -70,9 +70,12 @@ def make_scene(
     noise_px: float = 2.0,
     swap_runs: dict[str, tuple[int, int, int]] | None = None,
     drop: float = 0.05,
+    moving: tuple[str, ...] = (),
 ) -> Scene:
     """A two-person scene; ``swap_runs`` maps a camera to ``(person, first frame, last frame)`` of
-    a sustained whole-body swap; ``drop`` is the chance that a detection is missing."""
+    a sustained whole-body swap; ``drop`` is the chance that a detection is missing; the cameras
+    named in ``moving`` are carried round the people (0.2 rad/s on their circle, 1.4 m/s, bobbing 5 cm at
+    a walker's 1.8 steps/s), their ``poses`` ``(T, 4, 4)``."""
     rng = np.random.default_rng(seed)
     world = two_people(frames, fps)
     w, h = size
@@ -83,8 +86,15 @@ def make_scene(
         name = f"cam{c + 1}"
         angle = 2 * np.pi * c / cameras + rng.uniform(-0.3, 0.3)
         position = centre + [7.0 * np.cos(angle), 7.0 * np.sin(angle), rng.uniform(1.2, 2.5)]
-        scene.poses[name] = look_at(position, centre)
-        pixels, _, seen = in_frame_mask(world, scene.poses[name], K, None, size)
+        if name in moving:
+            t = np.arange(frames) / fps
+            path = centre + np.stack([7.0 * np.cos(angle + 0.2 * t), 7.0 * np.sin(angle + 0.2 * t), position[2] - centre[2] + 0.05 * np.sin(2 * np.pi * 1.8 * t)], axis=-1)
+            scene.poses[name] = np.stack([look_at(p, centre) for p in path])
+            projected = [in_frame_mask(world[:, k], scene.poses[name][k], K, None, size) for k in range(frames)]
+            pixels, seen = np.stack([p[0] for p in projected], axis=1), np.stack([p[2] for p in projected], axis=1)
+        else:
+            scene.poses[name] = look_at(position, centre)
+            pixels, _, seen = in_frame_mask(world, scene.poses[name], K, None, size)
         kp = np.concatenate([pixels + rng.normal(scale=noise_px, size=pixels.shape), np.full(seen.shape + (1,), 0.9)], axis=-1)
         kp[~seen] = np.nan
         kp[rng.random(kp.shape[:2]) < drop] = np.nan

@@ -7,7 +7,10 @@ the intrinsics, known or guessed) leaves most of them within a few pixels of the
 lines. Two different people give no such geometry once they move differently (their keypoints
 would need a camera that moves with them). Left/right swaps of the detector are tolerated: each
 frame's labels in the second camera are taken as detected or with left and right exchanged
-(:func:`mocapgraph.body.labelling.swap_permutation`), whichever fits the geometry better.
+(:func:`mocapgraph.body.labelling.swap_permutation`), whichever fits the geometry better. When
+either camera moves, each window of about half a second gets its own geometry
+(:func:`score_moving_pair`): the camera barely moves within it, and two people rarely move alike
+for that long.
 
 :func:`associate_tracks` scores every pair of tracks of every pair of cameras and groups the
 tracks into people, greedily joining the two groups with the best pooled score: a person holds at
@@ -201,6 +204,35 @@ def score_pair(
     )
 
 
+def score_moving_pair(a: np.ndarray, b: np.ndarray, focal_px: float, swap: np.ndarray | None = None, *, window: int, **kw) -> PairScore | None:
+    """Score two tracks as one person when either camera moves: :func:`score_pair` on windows of
+    ``window`` frames (a tail shorter than half a window joins the last), each with its own
+    two-view geometry, pooled. Arguments and ``kw`` as :func:`score_pair`; the pooled
+    ``median_error_px`` is the median of the windows' medians. None when no window shares
+    enough keypoints."""
+    if window < 2:
+        raise MocapgraphError(f"window: at least 2 frames, got {window}")
+    T = min(len(a), len(b))
+    starts = list(range(0, T, window))
+    if len(starts) > 1 and T - starts[-1] < window // 2:
+        starts.pop()
+    parts = []
+    for k, start in enumerate(starts):
+        stop = starts[k + 1] if k + 1 < len(starts) else T
+        s = score_pair(a[start:stop], b[start:stop], focal_px, swap, **kw)
+        if s is not None:
+            parts.append((start, s))
+    if not parts:
+        return None
+    return PairScore(
+        frames=sum(s.frames for _, s in parts),
+        correspondences=sum(s.correspondences for _, s in parts),
+        inliers=sum(s.inliers for _, s in parts),
+        median_error_px=float(np.median([s.median_error_px for _, s in parts])),
+        swapped_frames=tuple(start + f for start, s in parts for f in s.swapped_frames),
+    )
+
+
 @dataclass
 class Association:
     """Which track of which camera is which person.
@@ -253,6 +285,8 @@ def associate_tracks(
     min_affinity: float = DEFAULT_MIN_AFFINITY,
     min_correspondences: int = MIN_CORRESPONDENCES,
     seed: int = 0,
+    moving: Mapping[str, bool] | None = None,
+    window: int = 10,
 ) -> Association:
     """Group every camera's person tracks into people.
 
@@ -265,6 +299,11 @@ def associate_tracks(
         min_affinity: two groups are joined only when their pooled inlier ratio is at least this.
         min_correspondences: see :func:`score_pair`.
         seed: RANSAC seed.
+        moving: camera name → whether it moves (absent: static). A pair with a moving camera is
+            scored on windows of ``window`` frames, each with its own geometry
+            (:func:`score_moving_pair`).
+        window: frames per window of a moving pair (about half a second: long enough that two
+            people move differently within it, short enough that the camera barely moves).
 
     Returns:
         the association; people are ordered by how many cameras see them, then by affinity.
@@ -286,6 +325,11 @@ def associate_tracks(
         focal[cam] = float(np.sqrt(K[0, 0] * K[1, 1]))
         seen[cam] = np.isfinite(kp[..., 2]).any(-1)
         height[cam] = track_heights(kp)
+    moving = dict(moving or {})
+
+    def moves(cam: str) -> bool:
+        return bool(moving.get(cam, False))
+
     assoc = Association(cameras, [])
     for ca, cam_a in enumerate(cameras):
         for cam_b in cameras[ca + 1 :]:
@@ -295,7 +339,8 @@ def associate_tracks(
                     threshold_px = threshold * float(np.sqrt(height[cam_a][i] * height[cam_b][j]))
                     if not np.isfinite(threshold_px):
                         continue
-                    s = score_pair(a, b, f, swap, threshold_px=threshold_px, min_correspondences=min_correspondences, seed=seed)
+                    kw = dict(threshold_px=threshold_px, min_correspondences=min_correspondences, seed=seed)
+                    s = score_moving_pair(a, b, f, swap, window=window, **kw) if moves(cam_a) or moves(cam_b) else score_pair(a, b, f, swap, **kw)
                     if s is not None:
                         assoc.scores[(cam_a, i, cam_b, j)] = s
                         log.debug("%s/%d ~ %s/%d: %.2f inliers, median %.1f px, %d swapped frames over %d",

@@ -205,6 +205,10 @@ def track_people(
 
 
 PERSON_RULES = ("largest", "central")
+
+MOVING_WINDOW_S = 0.5
+"""Seconds per window over which tracks of a moving camera are matched to another camera's
+(:func:`~mocapgraph.data_tools.geometry.association.score_moving_pair`)."""
 """How :func:`select_person` picks among the people seen by the most cameras: the tallest in the
 images (mean over the cameras of the median box height over the image height), or the one
 nearest the images' centres (mean distance of the box centre from the image centre over the
@@ -411,9 +415,12 @@ def write_person_capture(
     calib = {c.name: c for c in calibration or []}
     intrinsics = {n: calib[n].K if n in calib else default_intrinsics(image_sizes[n]) for n in tracks}
     distortion = {n: calib[n].distortion if n in calib else None for n in tracks}
-    choice = select_person(
-        tracks, image_sizes, intrinsics, distortion, person, keypoint_format=keypoint_format, **dict(association_options or {})
-    )
+    options = dict(association_options or {})
+    moving = capture_options.get("moving")
+    if isinstance(moving, Mapping) and any(moving.values()):
+        rates = fps.values() if isinstance(fps, Mapping) else [fps]
+        options = {"moving": moving, "window": max(2, round(MOVING_WINDOW_S * min(rates)))} | options
+    choice = select_person(tracks, image_sizes, intrinsics, distortion, person, keypoint_format=keypoint_format, **options)
     unseen = [n for n in tracks if n not in choice.person.tracks]
     if unseen:
         raise MocapgraphError(
