@@ -407,7 +407,8 @@ def write_person_capture(
         detector, keypoint_format: the detections' detector name and format.
         metadata: more manifest entries (``people`` is added: :meth:`PersonChoice.metadata`).
         association_options: passed to :func:`~mocapgraph.data_tools.geometry.association.associate_tracks`.
-        capture_options: passed to :func:`~mocapgraph.data_tools.io.importers.assemble_capture`.
+        capture_options: passed to :func:`~mocapgraph.data_tools.io.importers.assemble_capture`; its
+            ``moving`` also tells the association which cameras move.
 
     Returns:
         the capture's path and the choice. A chosen person some camera never sees is an error.
