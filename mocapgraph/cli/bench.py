@@ -27,6 +27,12 @@ BENCHES = {
         "the online loop (fixed-lag iSAM2) on aircap and rich: updates/s, latency, memory, filtered/smoothed/offline errors",
         "mocapgraph.benchmarks.online:bench_online", {"lag_s": ("smoother window, seconds", {"flag": "--lag"})},
     ),
+    "colmap": (
+        "COLMAP on rendered phones and rich captures: registration, its error against the truth, SmartMocap's cameras against COLMAP and the truth",
+        "mocapgraph.benchmarks.colmap:bench_colmap",
+        {"image_scale": ("image size relative to the presets' 1920x1080", {}), "frame_step": ("reconstruct every N-th frame", {}),
+         "workers": ("parallel chunks", {})},
+    ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (
         "the shipped learned priors on held-out CMU subjects and on aircap",

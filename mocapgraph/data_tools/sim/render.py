@@ -7,7 +7,7 @@ plane ``z = 0`` and a set of axis-aligned boxes (walls, crates, poles) by the sl
 is tested only over the pixels of its projected bounding rectangle. Surfaces carry deterministic
 blocky value noise at three scales (hashed integer cells, so no two places look alike), faded to
 its mean where a cell is smaller than a few pixels (no shimmering aliasing far away). The person is
-the body's mesh, rasterised by :func:`~mocapgraph.data_tools.evaluation.overlay.rasterize` with the
+the body's mesh, rasterised by :func:`~mocapgraph.data_tools.geometry.raster.rasterize` with the
 distortion applied to its vertices, Lambert-shaded by a sun, z-buffered against the background
 (a triangle's depth is its vertices' mean: its ~2 cm size is far below any background gap).
 
@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 
 from mocapgraph.body import load_body_model
-from mocapgraph.data_tools.evaluation.overlay import rasterize
 from mocapgraph.data_tools.geometry.camera_model import MIN_DEPTH_M, distortion_max_radius2, project_points, undistort_pixels
+from mocapgraph.data_tools.geometry.raster import rasterize
 from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.progress import progress_bar
