@@ -54,14 +54,15 @@ def bench_colmap(duration_s: float = 2.0, seed: int = 1, image_scale: float = 0.
             colmap_s = time.perf_counter() - start
             moving = {c.name: c.moving for c in capture.cameras}
             truth = capture.ground_truth.cameras
-            colmap_vs_truth = compare_tracks(reference.cameras, truth, moving)
+            groups = reference.groups()
+            colmap_vs_truth = compare_tracks(reference.cameras, truth, moving, groups)
 
             start = time.perf_counter()
             result = run_smartmocap(capture, SmartmocapOptions(workers=workers, covariances=False))
             smartmocap_s = time.perf_counter() - start
             est = tracks_at_frames(result, capture)
             common = {n: reference.cameras[n] for n in est if n in reference.cameras}
-            vs_colmap = compare_tracks(common, {n: est[n] for n in common}, moving)
+            vs_colmap = compare_tracks(common, {n: est[n] for n in common}, moving, groups)
             vs_truth = compare_tracks({n: est[n] for n in common}, truth, moving)
             stats = reference.stats
             out[preset] = {

@@ -15,7 +15,7 @@ def cmd_colmap(args) -> None:
     check_writable(args.capture, args.name, args.overwrite)
     capture = load_capture(args.capture)
     cameras = [c.strip() for c in args.cameras.split(",") if c.strip()] if args.cameras else None
-    reference = reconstruct(capture, cameras, args.options_from(args), name=args.name, work_dir=args.work_dir)
+    reference = reconstruct(capture, cameras, args.options_from(args), name=args.name, work_dir=args.work_dir, video_dir=args.videos)
     path = write_reference(reference, args.capture, overwrite=args.overwrite)
     s = reference.stats
     print(f"COLMAP reference of {capture.name}: {s['registered_frames']} of {s['sampled_frames']} sampled frames registered ({100 * s['registration_rate']:.0f} %)")
@@ -36,6 +36,7 @@ def add_parsers(subparsers) -> None:
     parser = command(subparsers, "colmap", "reconstruct the cameras' tracks from the capture's videos with COLMAP (pseudo-ground truth)")
     parser.add_argument("capture", type=Path, help="capture directory whose cameras have videos")
     parser.add_argument("--cameras", help="comma-separated camera names (default: all)")
+    parser.add_argument("--videos", type=Path, metavar="DIR", help="folder of the videos, each named like its camera (default: the videos the capture names)")
     parser.add_argument("--name", default="colmap", help="the reference's name, its folder under references/ (default: colmap)")
     parser.add_argument("--work-dir", type=Path, help="keep COLMAP's images, masks and database here (default: a temporary directory)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing reference of that name")
@@ -46,4 +47,5 @@ def add_parsers(subparsers) -> None:
     flags.add("max_features", "SIFT features per image")
     flags.add("seed", "COLMAP's random seed")
     flags.add("threads", "CPU threads")
+    flags.add("init_min_tri_angle_deg", "smallest triangulation angle of COLMAP's first image pair, degrees", flag="--init-angle")
     parser.set_defaults(func=cmd_colmap)

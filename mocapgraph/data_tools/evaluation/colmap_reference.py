@@ -60,6 +60,7 @@ class ColmapOptions:
         max_features: SIFT features per image.
         seed: COLMAP's random seed (RANSAC, mapping).
         threads: CPU threads for extraction, matching and mapping.
+        init_min_tri_angle_deg: smallest triangulation angle of the first image pair (COLMAP: 16).
     """
 
     frame_step: int = 3
@@ -68,6 +69,7 @@ class ColmapOptions:
     max_features: int = 4096
     seed: int = 0
     threads: int = 2
+    init_min_tri_angle_deg: float = 4.0
 
 
 @dataclass
@@ -97,6 +99,11 @@ class ColmapReference:
     stats: dict = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
     options: dict = field(default_factory=dict)
+
+    def groups(self) -> dict[str, int]:
+        """Per camera, the COLMAP model its track comes from (0 the largest; -1 none): tracks of
+        different models share no world frame."""
+        return {c: int(self.stats.get("cameras", {}).get(c, {}).get("model", 0)) for c in self.cameras}
 
     def registered(self, camera: str) -> np.ndarray:
         """``(T_c,)`` bool: the frame has a reconstructed pose."""
@@ -147,17 +154,35 @@ def _image_name(camera: str, frame: int) -> str:
     return f"{camera}/{frame:06d}.png"
 
 
-def _write_frames(capture, cameras, options: ColmapOptions, images: Path, masks: Path) -> dict[str, np.ndarray]:
+def camera_videos(capture, cameras: list[str], video_dir: Path | None = None) -> dict[str, Path]:
+    """Each camera's video: the capture's ``video`` field, else (or with ``video_dir`` given) the
+    file in ``video_dir`` named like the camera (``mocapgraph detect`` names cameras by file stem)."""
+    out = {}
+    for name in cameras:
+        cam = capture.camera(name)
+        if video_dir is not None:
+            found = sorted(p for p in Path(video_dir).glob(f"{name}.*") if p.is_file())
+            if not found:
+                raise ReferenceError(f"{video_dir}: no video named {name}.* for camera {name}")
+            out[name] = found[0]
+        elif cam.video is not None:
+            out[name] = Path(capture.path or ".") / cam.video
+        else:
+            raise ReferenceError(
+                f"capture {capture.path}: camera {name} names no video (cameras.{name}.video); pass the folder of the "
+                "videos (--videos DIR), or render them for a synthetic capture (synth --render)"
+            )
+    return out
+
+
+def _write_frames(capture, videos: dict[str, Path], options: ColmapOptions, images: Path, masks: Path) -> dict[str, np.ndarray]:
     """The sampled frames of every camera's video as PNGs with their masks; returns per camera the
     frame indices written ``(S_c,)``."""
     written = {}
-    total = sum(len(range(0, capture.camera(c).num_frames, options.frame_step)) for c in cameras)
+    total = sum(len(range(0, capture.camera(c).num_frames, options.frame_step)) for c in videos)
     bar = progress_bar(total=total, desc="colmap: frames", unit="frame")
-    for name in cameras:
+    for name, path in videos.items():
         cam = capture.camera(name)
-        if cam.video is None:
-            raise ReferenceError(f"capture {capture.path}: camera {name} has no video (cameras.{name}.video); render one with synth --render or add the camera's video")
-        path = Path(capture.path or ".") / cam.video
         reader = cv2.VideoCapture(str(path))
         if not reader.isOpened():
             raise ReferenceError(f"{path}: OpenCV cannot open the video of camera {name}")
@@ -226,12 +251,16 @@ def _spans(frames: np.ndarray) -> str:
     return ", ".join(out)
 
 
-def reconstruct(capture, cameras: list[str] | None = None, options: ColmapOptions = ColmapOptions(), name: str = "colmap", work_dir: Path | None = None) -> ColmapReference:
+def reconstruct(
+    capture, cameras: list[str] | None = None, options: ColmapOptions = ColmapOptions(), name: str = "colmap",
+    work_dir: Path | None = None, video_dir: Path | None = None,
+) -> ColmapReference:
     """Reconstruct the capture's camera tracks from its videos with COLMAP (see the module docstring).
 
     Args:
         capture: a loaded :class:`~mocapgraph.data_tools.io.capture.Capture` whose cameras have videos.
         cameras: which cameras (default all).
+        video_dir: a folder with the videos, named like the cameras (default: the capture's own).
         options: sampling, matching and mapping settings.
         work_dir: where COLMAP's images and database go (default a temporary directory, removed).
 
@@ -241,8 +270,7 @@ def reconstruct(capture, cameras: list[str] | None = None, options: ColmapOption
     """
     pycolmap = _pycolmap()
     cameras = list(cameras or [c.name for c in capture.cameras])
-    for c in cameras:
-        capture.camera(c)  # unknown names fail here, with the capture's camera list
+    videos = camera_videos(capture, cameras, video_dir)
     if options.frame_step < 1 or options.overlap < 1 or options.keyframe_every < 1:
         raise ReferenceError("frame_step, overlap and keyframe_every must be at least 1")
     pycolmap.set_random_seed(options.seed)
@@ -251,20 +279,21 @@ def reconstruct(capture, cameras: list[str] | None = None, options: ColmapOption
     temporary = work_dir is None
     work = Path(tempfile.mkdtemp(prefix="mocapgraph-colmap-")) if temporary else Path(work_dir)
     try:
-        return _reconstruct_in(pycolmap, capture, cameras, options, name, work)
+        return _reconstruct_in(pycolmap, capture, videos, options, name, work)
     finally:
         if temporary:
             shutil.rmtree(work, ignore_errors=True)
 
 
-def _reconstruct_in(pycolmap, capture, cameras, options: ColmapOptions, name: str, work: Path) -> ColmapReference:
+def _reconstruct_in(pycolmap, capture, videos: dict[str, Path], options: ColmapOptions, name: str, work: Path) -> ColmapReference:
+    cameras = list(videos)
     images, masks, database = work / "images", work / "masks", work / "database.db"
     models = work / "models"
     models.mkdir(parents=True, exist_ok=True)
     database.unlink(missing_ok=True)
     seconds = {}
     start = time.perf_counter()
-    frames = _write_frames(capture, cameras, options, images, masks)
+    frames = _write_frames(capture, videos, options, images, masks)
     seconds["frames"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -321,6 +350,9 @@ def _reconstruct_in(pycolmap, capture, cameras, options: ColmapOptions, name: st
     mapping.ba_refine_extra_params = False
     mapping.mapper.abs_pose_refine_focal_length = False
     mapping.mapper.abs_pose_refine_extra_params = False
+    # Video frames are close together: COLMAP's 16° for the first pair rarely exists in a few
+    # seconds of a walking camera, and with the intrinsics known a smaller angle is safe.
+    mapping.mapper.init_min_tri_angle = options.init_min_tri_angle_deg
     total = sum(len(f) for f in frames.values())
     bar = progress_bar(total=total, desc="colmap: mapping", unit="image")
     reconstructions = pycolmap.incremental_mapping(database, images, models, options=mapping, next_image_callback=lambda: bar.update(1))
@@ -332,40 +364,49 @@ def _reconstruct_in(pycolmap, capture, cameras, options: ColmapOptions, name: st
             f"({sum(features.values())} SIFT features in {total} frames, {len(pairs)} pairs matched): "
             "too few matches between frames (blank, featureless or too different views)"
         )
-    model = max(reconstructions.values(), key=lambda r: r.num_reg_images())
-    return _reference_from(model, reconstructions, capture, cameras, frames, options, name, seconds, total)
+    ranked = sorted(reconstructions.values(), key=lambda r: r.num_reg_images(), reverse=True)
+    return _reference_from(ranked, capture, cameras, frames, options, name, seconds, total)
 
 
-def _reference_from(model, reconstructions, capture, cameras, frames, options, name, seconds, total) -> ColmapReference:
-    poses = {c: np.full((capture.camera(c).num_frames, 4, 4), np.nan) for c in cameras}
+def _reference_from(ranked, capture, cameras, frames, options, name, seconds, total) -> ColmapReference:
+    """The reference from COLMAP's models ``ranked`` largest first: each camera's track comes from
+    the model holding most of its frames (model 0 for every camera COLMAP connected)."""
     sampled = {c: np.zeros(capture.camera(c).num_frames, bool) for c in cameras}
     for c in cameras:
         sampled[c][frames[c]] = True
-    for image in model.images.values():
-        if not image.has_pose:
-            continue
-        cam_name, stem = image.name.split("/")
-        cam_from_world = image.cam_from_world()
-        poses[cam_name][int(stem.split(".")[0])] = np.linalg.inv(np.vstack([cam_from_world.matrix(), [0, 0, 0, 1]]))
-    elsewhere: dict[str, int] = {}
-    for other in reconstructions.values():
-        if other is model:
-            continue
-        for image in other.images.values():
-            if image.has_pose:
-                cam_name = image.name.split("/")[0]
-                elsewhere[cam_name] = elsewhere.get(cam_name, 0) + 1
+    per_model = []  # per model: {camera: (T_c, 4, 4)}
+    for model in ranked:
+        poses = {c: np.full((capture.camera(c).num_frames, 4, 4), np.nan) for c in cameras}
+        for image in model.images.values():
+            if not image.has_pose:
+                continue
+            cam_name, stem = image.name.split("/")
+            cam_from_world = np.vstack([image.cam_from_world().matrix(), [0.0, 0.0, 0.0, 1.0]])
+            poses[cam_name][int(stem.split(".")[0])] = np.linalg.inv(cam_from_world)
+        per_model.append(poses)
+    counts = np.array([[np.all(np.isfinite(p[c]), axis=(1, 2)).sum() for c in cameras] for p in per_model])  # (models, cameras)
+    chosen = {c: int(np.argmax(counts[:, k])) for k, c in enumerate(cameras)}  # ties: the larger model
+    poses = {c: per_model[chosen[c]][c] for c in cameras}
 
     failures, per_camera = [], {}
     for c in cameras:
         done = np.all(np.isfinite(poses[c]), axis=(1, 2))
         missing = np.flatnonzero(sampled[c] & ~done)
-        per_camera[c] = {"sampled": int(sampled[c].sum()), "registered": int(done.sum()), "registration_rate": float(done.sum() / max(1, sampled[c].sum()))}
-        if len(missing) == sampled[c].sum():
-            why = f"; {elsewhere[c]} of its frames form a separate model not connected to the largest" if c in elsewhere else ": too few matches with the registered frames"
-            failures.append(f"camera {c}: none of its {len(missing)} sampled frames registered{why}")
-        elif len(missing):
+        per_camera[c] = {
+            "sampled": int(sampled[c].sum()), "registered": int(done.sum()),
+            "registration_rate": float(done.sum() / max(1, sampled[c].sum())), "model": chosen[c] if done.any() else -1,
+        }  # fmt: skip
+        if not done.any():
+            failures.append(f"camera {c}: none of its {len(missing)} sampled frames registered (too few matches with other frames)")
+            continue
+        if chosen[c] > 0:
+            failures.append(
+                f"camera {c}: registered in COLMAP's model {chosen[c]}, not connected to the largest (model 0): "
+                "its track is scored alone (Procrustes), never against the other cameras"
+            )
+        if len(missing):
             failures.append(f"camera {c}: {len(missing)} of {sampled[c].sum()} sampled frames not registered (frames {_spans(missing)})")
+    model = ranked[0]
     points = model.points3D
     xyz = np.array([p.xyz for p in points.values()]).reshape(-1, 3)
     errors = np.array([p.error for p in points.values()], dtype=float)
@@ -378,7 +419,7 @@ def _reference_from(model, reconstructions, capture, cameras, frames, options, n
         "mean_reprojection_error_px": float(model.compute_mean_reprojection_error()),
         "mean_track_length": float(model.compute_mean_track_length()),
         "points": int(len(xyz)),
-        "models": len(reconstructions),
+        "models": len(ranked),
         "seconds": {k: float(v) for k, v in seconds.items()},
         "seconds_per_frame": float((seconds["extraction"] + seconds["matching"] + seconds["mapping"]) / max(1, total)),
         "cameras": per_camera,
@@ -435,6 +476,7 @@ def load_reference(capture_path: str | Path, name: str, *, directory: Path | Non
         R = check_array(arrays[f"{c}.R"], where.at(rel, f"{c}.R"), (None, 3, 3), allow_nan=True)
         t = check_array(arrays[f"{c}.t"], where.at(rel, f"{c}.t"), (R.shape[0], 3), allow_nan=True)
         poses[c] = world_T_camera_from_Rt(R, t)
+        poses[c][~(np.all(np.isfinite(R), axis=(1, 2)) & np.all(np.isfinite(t), axis=1))] = np.nan  # the whole pose, not only R and t
         sampled[c] = np.asarray(arrays[f"{c}.sampled"], dtype=bool)
         if sampled[c].shape != (R.shape[0],):
             raise where.at(rel, f"{c}.sampled").fail(f"expected ({R.shape[0]},) booleans, got {sampled[c].shape}")

@@ -66,7 +66,9 @@ def _finite(poses: np.ndarray) -> np.ndarray:
     return np.all(np.isfinite(poses), axis=(1, 2))
 
 
-def compare_tracks(moved: dict[str, np.ndarray], fixed: dict[str, np.ndarray], moving: dict[str, bool]) -> dict[str, CameraScore]:
+def compare_tracks(
+    moved: dict[str, np.ndarray], fixed: dict[str, np.ndarray], moving: dict[str, bool], groups: dict[str, int] | None = None
+) -> dict[str, CameraScore]:
     """Align ``moved`` onto ``fixed`` camera by camera (see the module docstring) and score it.
 
     Args:
@@ -74,22 +76,31 @@ def compare_tracks(moved: dict[str, np.ndarray], fixed: dict[str, np.ndarray], m
             world frame and scale.
         fixed: per camera, the same frames in the frame whose units the errors are in.
         moving: per camera, whether it moves.
+        groups: per camera, which world frame of ``moved`` it is in (COLMAP's separate models);
+            the similarity for static cameras is fitted within a group. Default: one frame.
 
     Returns:
         Per camera present in both, its :class:`CameraScore`.
     """
     names = [n for n in moved if n in fixed]
     both = {n: _finite(moved[n]) & _finite(fixed[n]) for n in names}
-    usable = [n for n in names if both[n].any()]
-    overall = None
-    if len(usable) >= MIN_ALIGNMENT_CAMERAS:
-        try:
-            overall = align_camera_centres([moved[n][both[n], :3, 3] for n in usable], [fixed[n][both[n], :3, 3] for n in usable])
-        except MocapgraphError:
-            overall = None  # collinear centres: static cameras then stay not evaluable
+    groups = groups or {}
+    group_of = {n: groups.get(n, 0) for n in names}
+    overall, members = {}, {}
+    for g in set(group_of.values()):
+        usable = [n for n in names if group_of[n] == g and both[n].any()]
+        members[g] = len(usable)
+        if len(usable) >= MIN_ALIGNMENT_CAMERAS:
+            try:
+                overall[g] = align_camera_centres([moved[n][both[n], :3, 3] for n in usable], [fixed[n][both[n], :3, 3] for n in usable])
+            except MocapgraphError:
+                pass  # collinear centres: static cameras then stay not evaluable
     out = {}
     for n in names:
         a, b = moved[n][both[n]], fixed[n][both[n]]
+        if not len(a):
+            out[n] = CameraScore(moving[n], 0, np.nan, np.nan, "not evaluable: no frame has a pose in both")
+            continue
         if moving[n] and len(a) >= MIN_TRACK_FRAMES:
             try:
                 fit = procrustes_trajectory(a[:, :3, 3], b[:, :3, 3], a[:, :3, :3], b[:, :3, :3])
@@ -97,10 +108,11 @@ def compare_tracks(moved: dict[str, np.ndarray], fixed: dict[str, np.ndarray], m
             except MocapgraphError as exc:
                 out[n] = CameraScore(True, len(a), np.nan, np.nan, f"not evaluable: {exc}")
                 continue
-        elif overall is not None and len(a):
-            fit, how = overall, f"similarity over {len(usable)} cameras"
+        elif group_of[n] in overall:
+            fit, how = overall[group_of[n]], f"similarity over {members[group_of[n]]} cameras"
         else:
-            why = f"{len(a)} frames in both" if moving[n] else f"static, and only {len(usable)} cameras in both (a similarity needs {MIN_ALIGNMENT_CAMERAS})"
+            why = (f"{len(a)} frames in both" if moving[n] else
+                   f"static, and only {members[group_of[n]]} cameras of its world in both (a similarity needs {MIN_ALIGNMENT_CAMERAS})")  # fmt: skip
             out[n] = CameraScore(moving[n], len(a), np.nan, np.nan, f"not evaluable: {why}")
             continue
         aligned = fit.apply_pose(a)
@@ -123,11 +135,12 @@ def reference_report(result, capture, reference) -> dict:
         raise MocapgraphError(
             f"the result's cameras ({', '.join(est) or 'none'}) and the reference's ({', '.join(reference.cameras)}) have none in common"
         )
-    report = {"result_vs_reference": compare_tracks(common, {n: est[n] for n in common}, moving)}
+    groups = reference.groups()
+    report = {"result_vs_reference": compare_tracks(common, {n: est[n] for n in common}, moving, groups)}
     gt = capture.ground_truth
     if gt is not None and gt.cameras:
         truth = {n: gt.cameras[n] for n in reference.cameras if n in gt.cameras}
-        report["reference_vs_truth"] = compare_tracks({n: reference.cameras[n] for n in truth}, truth, moving)
+        report["reference_vs_truth"] = compare_tracks({n: reference.cameras[n] for n in truth}, truth, moving, groups)
         report["result_vs_truth"] = compare_tracks({n: est[n] for n in common if n in truth}, truth, moving)
     report["reference_stats"] = reference.stats
     return report
