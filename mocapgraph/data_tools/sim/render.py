@@ -279,12 +279,10 @@ def video_name(camera_name: str) -> str:
     return f"cameras/{camera_name}/video.mp4"
 
 
-def render_capture_videos(capture, root: Path, *, max_frames: int | None = None) -> dict[str, float]:
+def render_capture_videos(capture, root: Path) -> dict[str, float]:
     """Render every camera of the synthetic ``capture`` to ``root / video_name(camera)`` (MP4, the
     camera's frame rate and image size, frame ``i`` = the camera's frame ``i``); sets each camera's
     ``video`` to that relative path. Returns frames per second of rendering per camera.
-
-    ``max_frames`` renders only the first frames (for timing).
     """
     gt = capture.ground_truth
     scene = scene_for_capture(capture)
@@ -295,8 +293,8 @@ def render_capture_videos(capture, root: Path, *, max_frames: int | None = None)
         truth = gt.cameras.get(cam.name)
         if truth is None:
             raise MocapgraphError(f"capture {capture.name!r}: camera {cam.name} has no ground-truth poses to render from")
-        frames = cam.num_frames if max_frames is None else min(max_frames, cam.num_frames)
-        states = match_times(gt.timestamps, cam.timestamps[:frames], tolerance=0.5 / cam.frame_rate)
+        frames = cam.num_frames
+        states = match_times(gt.timestamps, cam.timestamps, tolerance=0.5 / cam.frame_rate)
         if np.any(states < 0):
             raise MocapgraphError(f"capture {capture.name!r}: camera {cam.name} has frames without a ground-truth body state")
         rays = camera_rays(cam.K, cam.distortion, cam.image_size)
