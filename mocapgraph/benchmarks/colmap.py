@@ -6,7 +6,8 @@ rendered (frames/s per camera), reconstructed by COLMAP (registration rate per c
 extraction + matching + mapping), and solved by SmartMocap; then, camera by camera
 (:mod:`~mocapgraph.data_tools.evaluation.reference_eval`): COLMAP against the truth, SmartMocap
 against COLMAP and SmartMocap against the truth, side by side, after the same alignments
-(per-camera Procrustes for moving cameras, one similarity over all cameras for static ones).
+(per-camera Procrustes for moving cameras, one similarity over all cameras for static ones) and
+on the same frames (those COLMAP registered).
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ def bench_colmap(duration_s: float = 2.0, seed: int = 1, image_scale: float = 0.
             est = tracks_at_frames(result, capture)
             common = {n: reference.cameras[n] for n in est if n in reference.cameras}
             vs_colmap = compare_tracks(common, {n: est[n] for n in common}, moving, groups)
-            vs_truth = compare_tracks({n: est[n] for n in common}, truth, moving)
+            on_reference = {n: np.where(np.all(np.isfinite(common[n]), axis=(1, 2))[:, None, None], est[n], np.nan) for n in common}
+            vs_truth = compare_tracks(on_reference, truth, moving)
             stats = reference.stats
             out[preset] = {
                 "image_size": list(capture.cameras[0].image_size),

@@ -31,7 +31,7 @@ def cmd_eval(args) -> None:
 SECTIONS = {
     "result_vs_reference": "the result against the reference (reference mapped onto the result: the result's units)",
     "reference_vs_truth": "the reference's own error against the true cameras",
-    "result_vs_truth": "the result against the true cameras, aligned the same way",
+    "result_vs_truth": "the result against the true cameras, aligned the same way, on the frames the reference has",
 }
 
 

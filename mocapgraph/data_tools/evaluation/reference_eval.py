@@ -141,7 +141,10 @@ def reference_report(result, capture, reference) -> dict:
     if gt is not None and gt.cameras:
         truth = {n: gt.cameras[n] for n in reference.cameras if n in gt.cameras}
         report["reference_vs_truth"] = compare_tracks({n: reference.cameras[n] for n in truth}, truth, moving, groups)
-        report["result_vs_truth"] = compare_tracks({n: est[n] for n in common if n in truth}, truth, moving)
+        # On the frames the reference has, so that the two scores of the result differ only by
+        # what they are compared with.
+        on_reference = {n: np.where(_finite(reference.cameras[n])[:, None, None], est[n], np.nan) for n in common if n in truth}
+        report["result_vs_truth"] = compare_tracks(on_reference, truth, moving)
     report["reference_stats"] = reference.stats
     return report
 
