@@ -28,6 +28,12 @@ BENCHES = {
         "mocapgraph.benchmarks.online:bench_online",
         {"lag_s": ("smoother window, seconds", {"flag": "--lag"}), "long_s": ("instead: one stream this long (e.g. 600), memory and latency per minute", {"flag": "--long"})},
     ),
+    "colmap": (
+        "COLMAP on rendered phones and rich captures: registration, its error against the truth, SmartMocap's cameras against COLMAP and the truth",
+        "mocapgraph.benchmarks.colmap:bench_colmap",
+        {"image_scale": ("image size relative to the presets' 1920x1080", {}), "frame_step": ("reconstruct every N-th frame", {}),
+         "workers": ("parallel chunks", {})},
+    ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (
         "the shipped learned priors on held-out CMU subjects and on aircap",

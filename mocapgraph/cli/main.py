@@ -11,12 +11,12 @@ from mocapgraph.progress import configure_logging
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from mocapgraph.cli import batch, bench, body, capture, demo, detect, evaluate, export, plot, priors, run, synth, view
+    from mocapgraph.cli import batch, bench, body, capture, colmap, demo, detect, evaluate, export, plot, priors, run, synth, view
 
     parser = argparse.ArgumentParser(prog="mocapgraph", description="Markerless multi-camera human motion capture as factor graphs.")
     parser.add_argument("--version", action="version", version=f"mocapgraph {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in (body, bench, capture, detect, synth, run, evaluate, plot, export, view, batch, priors, demo):
+    for module in (body, bench, capture, detect, synth, colmap, run, evaluate, plot, export, view, batch, priors, demo):
         module.add_parsers(sub)
     return parser
 

@@ -13,14 +13,25 @@ def cmd_synth(args) -> None:
     refuse_existing(args.out, args.overwrite)
     capture = synthesize(
         args.preset, seed=args.seed, duration_s=args.duration_s, motion=args.motion, detectors=args.detectors,
-        detector_faults=args.detector_faults,
+        detector_faults=args.detector_faults, image_scale=args.image_scale,
     )  # fmt: skip
-    path = write_capture(capture, args.out, overwrite=args.overwrite)
+    speeds = {}
+    render = None
+    if args.render:
+        from mocapgraph.data_tools.sim.render import render_capture_videos
+
+        def render(tmp):
+            speeds.update(render_capture_videos(capture, tmp))
+
+    path = write_capture(capture, args.out, overwrite=args.overwrite, extra_files=render)
     frames = sum(cam.num_frames for cam in capture.cameras)
     swapped = sum(int((codes != 0).sum()) for by_det in capture.ground_truth.swaps.values() for codes in by_det.values())
     detections = sum(cam.num_frames * len(cam.detectors) for cam in capture.cameras)
     print(f"synthesised {capture.name}: {len(capture.cameras)} cameras, {frames} frames, motion: {capture.metadata['motion']}")
     print(f"detector faults: {args.detector_faults}; left/right swapped in {swapped} of {detections} camera-detector frames")
+    if speeds:
+        size = "; ".join(f"{name} {capture.camera(name).image_size[0]}x{capture.camera(name).image_size[1]} {fps:.2f}" for name, fps in speeds.items())
+        print(f"rendered video (frames/s per camera): {size}")
     print(f"wrote {path}")
 
 
@@ -38,6 +49,9 @@ def add_parsers(subparsers) -> None:
          "motion": "walk, turn, arms, zigzag_then_act, stand, or a CMU take (cmu:cmu_02_01.npz); default per preset",
          "detectors": ("comma-separated detector presets; default per preset", {"type": detector_list}),
          "detector_faults": ("sustained left/right swaps, far-side guesses, keypoint offsets, size bias "
-                             "(docs/detector_faults.md)", {"choices": FAULT_LEVELS})},
+                             "(docs/detector_faults.md)", {"choices": FAULT_LEVELS}),
+         "image_scale": "resize every camera's images and intrinsics (0.5: 960x540 for the 1920x1080 presets)"},
     )  # fmt: skip
+    synth.add_argument("--render", action="store_true",
+                       help="also render each camera's video (MP4: textured ground, walls, crates, poles and the body's mesh; docs/capture-format.md)")
     synth.set_defaults(func=cmd_synth)

@@ -485,17 +485,25 @@ def _read_swaps(doc, where: Where, files: ArrayFiles, cameras: list[Camera], kep
 # Writing
 
 
-def write_capture(capture: Capture, path: str | Path, overwrite: bool = False) -> Path:
+def write_capture(capture: Capture, path: str | Path, overwrite: bool = False, extra_files=None) -> Path:
     """Write ``capture`` as a directory at ``path``, atomically; returns the path.
 
     Everything goes into a temporary sibling directory that replaces ``path`` only when complete.
     The capture is validated by reading the temporary copy back before it is moved into place,
-    without repairs: a written capture never needs one.
+    without repairs: a written capture never needs one. ``extra_files(tmp)``, when given, runs
+    first and writes files the manifest refers to (e.g. rendered videos), setting the capture's
+    fields that name them.
     """
+
+    def write(tmp: Path) -> None:
+        if extra_files is not None:
+            extra_files(tmp)
+        _write_into(capture, tmp)
+
     return write_directory_atomically(
         Path(path),
         overwrite,
-        lambda tmp: _write_into(capture, tmp),
+        write,
         lambda tmp: load_capture(tmp, repair=False),
         CaptureError,
     )

@@ -59,6 +59,20 @@ def subject_motion(preset: str, motion: str | None, duration_s: float, seed: int
     return take
 
 
+def scaled_camera(sim, scale: float):
+    """``sim`` (a scenario camera) with images resized by ``scale``: image size rounded, and the
+    intrinsics mapped so that a ray hits the same place in the resized image (pixel centres at
+    integers: ``u' = scale · (u + ½) − ½``)."""
+    size = (max(1, round(sim.image_size[0] * scale)), max(1, round(sim.image_size[1] * scale)))
+    sx, sy = size[0] / sim.image_size[0], size[1] / sim.image_size[1]
+    K = np.asarray(sim.K, dtype=float).copy()
+    K[0] *= sx
+    K[1] *= sy
+    K[0, 2] += 0.5 * sx - 0.5
+    K[1, 2] += 0.5 * sy - 0.5
+    return replace(sim, K=K, image_size=size)
+
+
 def synthesize(
     preset: str,
     seed: int = 0,
@@ -67,6 +81,7 @@ def synthesize(
     detectors: tuple[str, ...] | None = None,
     noise_scale: float = 1.0,
     detector_faults: str = "realistic",
+    image_scale: float = 1.0,
 ) -> Capture:
     """A synthetic capture of ``preset`` (``aircap``, ``airpose``, ``rich``, ``phones``).
 
@@ -85,6 +100,8 @@ def synthesize(
         raise MocapgraphError(f"duration must be positive, got {duration_s}")
     if not (np.isfinite(noise_scale) and noise_scale >= 0):
         raise MocapgraphError(f"noise_scale must be a finite number >= 0, got {noise_scale}")
+    if not (np.isfinite(image_scale) and 0.05 <= image_scale <= 4):
+        raise MocapgraphError(f"image_scale must lie in [0.05, 4], got {image_scale}")
     if detector_faults not in FAULT_LEVELS:
         raise MocapgraphError(f"unknown detector fault level {detector_faults!r}; levels: {', '.join(FAULT_LEVELS)}")
     detectors = tuple(detectors or PRESET_DETECTORS[preset])
@@ -94,6 +111,8 @@ def synthesize(
     body = load_body_model()
     subject = subject_motion(preset, motion, duration_s, seed, body)
     sims = scenario_cameras(preset, subject.timestamps, subject.root[:, :3, 3], seed=seed, duration_s=duration_s)
+    if image_scale != 1.0:
+        sims = [scaled_camera(sim, image_scale) for sim in sims]
     streams = np.random.SeedSequence([seed, 0x5EED]).spawn(len(sims) * len(detectors))
 
     cameras, truth_cameras, truth_swaps = [], {}, {}
@@ -145,5 +164,6 @@ def synthesize(
             "detectors": list(detectors),
             "noise_scale": float(noise_scale),
             "detector_faults": detector_faults,
+            "image_scale": float(image_scale),
         },
     )
