@@ -126,6 +126,7 @@ def _registered_and_accurate(capture, reference, max_cm: float, max_deg: float):
     return scores
 
 
+@pytest.mark.slow  # 25-35 s: rendering, SIFT and mapping; the reference format, the alignment and the errors have fast tests
 def test_a_walking_phone_registers_and_its_track_matches_the_truth(tmp_path):
     """Tiny (~25 s): one walking phone, 1 s at 576x324 (its portrait 324x576), every 2nd frame."""
     from mocapgraph.data_tools.evaluation.colmap_reference import ColmapOptions, load_reference, reconstruct, write_reference
