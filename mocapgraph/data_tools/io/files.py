@@ -6,12 +6,12 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from mocapgraph.data_tools.io.checks import LIMITS, check_limit, load_npy, load_npz, parse_toml, plain_numbers, read_text, resolve_inside
 from mocapgraph.errors import MocapgraphError
 
 
@@ -31,9 +31,11 @@ class Where:
         """Another file of the same directory."""
         return Where(file, field, self.error)
 
+    def __str__(self) -> str:
+        return f"{self.file}: {self.field}" if self.field else self.file
+
     def fail(self, message: str) -> MocapgraphError:
-        place = f"{self.file}: {self.field}" if self.field else self.file
-        return self.error(f"{place}: {message}")
+        return self.error(f"{self}: {message}")
 
 
 def read_manifest(
@@ -46,25 +48,35 @@ def read_manifest(
     """
     path = Path(path)
     root = path.parent if path.name == manifest else path
-    if not root.exists():
-        raise error(f"{root}: directory not found")
     manifest_path = root / manifest
-    if not manifest_path.is_file():
-        raise error(f"{manifest_path}: missing (a {format_name} is a directory with a {manifest} manifest)")
     try:
-        doc = tomllib.loads(manifest_path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise error(f"{manifest_path}: not valid TOML ({exc})") from None
+        if not root.exists():
+            raise error(f"{root}: directory not found")
+        if not manifest_path.is_file():
+            raise error(f"{manifest_path}: missing (a {format_name} is a directory with a {manifest} manifest)")
+    except (OSError, ValueError) as exc:  # NUL bytes, symlink loops, names too long
+        raise error(f"{root}: cannot be used as a {format_name} directory ({exc})") from None
+    doc = parse_toml(read_text(manifest_path, error, "a TOML manifest"), manifest_path, error)
     where = Where(manifest, error=error)
     if doc.get("format") != format_name:
         raise where("format").fail(f"expected {format_name!r}, got {doc.get('format')!r}")
-    if doc.get("version") != version:
-        raise where("version").fail(f"this mocapgraph reads version {version}, the file says {doc.get('version')!r}")
+    found = doc.get("version")
+    if type(found) is not int or found != version:  # 1.0 and true compare equal to 1
+        raise where("version").fail(f"this mocapgraph reads version {version} (an integer), the file says {found!r}")
     return root, doc, where
 
 
-def check_array(value, where: Where, shape: tuple[int | None, ...], *, allow_nan: bool = False) -> np.ndarray:
-    """``value`` as a float array of ``shape`` (None = any), finite (NaN allowed if asked)."""
+def check_array(
+    value, where: Where, shape: tuple[int | None, ...], *, allow_nan: bool = False, limit: str | None = None
+) -> np.ndarray:
+    """``value`` as a float array of ``shape`` (None = any), finite (NaN allowed if asked), every
+    number within ``limit`` (a key of :data:`~mocapgraph.data_tools.io.checks.LIMITS`) if given.
+    Booleans are refused: they are not numbers, though numpy would read them as 0 and 1."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "iuf":
+            raise where.fail(f"expected numbers, got {value.dtype} values")
+    else:
+        plain_numbers(value, where)
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -76,25 +88,38 @@ def check_array(value, where: Where, shape: tuple[int | None, ...], *, allow_nan
     if np.any(bad):
         first = tuple(int(i) for i in np.argwhere(bad)[0])
         raise where.fail(f"contains {'inf' if allow_nan else 'NaN or inf'} (first at {first})")
+    if limit is not None:
+        check_limit(arr, where, limit, finite_only=allow_nan)
     return arr
 
 
 def check_rotations(R: np.ndarray, where: Where) -> None:
     """Every ``(…, 3, 3)`` block is a proper rotation to 1e-6."""
-    err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(initial=0.0)
-    if err > 1e-6 or np.any(np.linalg.det(R) < 0):
+    with np.errstate(over="ignore", invalid="ignore"):  # entries of 1e300 are refused below, not warned about
+        err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(initial=0.0)
+        flipped = np.any(np.linalg.det(R) < 0)
+    if not err <= 1e-6 or flipped:
         raise where.fail(f"not a rotation matrix (orthonormality error {err:.2g})")
 
 
 def check_increasing(t: np.ndarray, where: Where) -> None:
-    """A non-empty, strictly increasing time axis."""
+    """A non-empty, strictly increasing time axis of seconds, its samples at least
+    ``LIMITS["time_step"].lo`` apart and spanning at most ``LIMITS["time_span"].hi``: a time grid
+    over such an axis stays of a size that fits in memory."""
     if t.size == 0:
         raise where.fail("is empty")
+    check_limit(t, where, "time")
     steps = np.diff(t)
     if np.any(steps <= 0):
         i = int(np.argmax(steps <= 0))
         # float(): NumPy 2 scalars repr as "np.float64(0.1)"
         raise where.fail(f"must be strictly increasing (index {i + 1}: {float(t[i + 1])!r} after {float(t[i])!r})")
+    step, span = LIMITS["time_step"], LIMITS["time_span"]
+    if np.any(steps < step.lo):
+        i = int(np.argmax(steps < step.lo))
+        raise where.fail(f"samples {i} and {i + 1} are {float(steps[i]):.3g} s apart; at least {step.lo:g} s expected")
+    if t[-1] - t[0] > span.hi:
+        raise where.fail(f"spans {float(t[-1] - t[0]):.4g} s, more than {span.hi:g} s")
 
 
 def require_key(table: dict, key: str, where: Where, kind=None):
@@ -102,8 +127,8 @@ def require_key(table: dict, key: str, where: Where, kind=None):
     if key not in table:
         raise where(key).fail("missing")
     value = table[key]
-    if kind is not None and not isinstance(value, kind):
-        kinds = kind if isinstance(kind, tuple) else (kind,)
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if kind is not None and (not isinstance(value, kind) or (isinstance(value, bool) and bool not in kinds)):
         raise where(key).fail(f"expected {' or '.join(k.__name__ for k in kinds)}, got {type(value).__name__}")
     return value
 
@@ -115,27 +140,13 @@ class ArrayFiles:
         self.root, self.error = root, error
 
     def resolve(self, rel: str, where: Where) -> Path:
-        path = (self.root / rel).resolve()
-        if self.root.resolve() not in path.parents:
-            raise where.fail(f"path {rel!r} points outside the directory")
-        if not path.is_file():
-            raise where.fail(f"file {rel!r} not found")
-        return path
+        return resolve_inside(self.root, rel, where)
 
     def npy(self, rel: str, where: Where) -> np.ndarray:
-        path = self.resolve(rel, where)
-        try:
-            return np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise self.error(f"{rel}: not a readable .npy file ({exc})") from None
+        return load_npy(self.resolve(rel, where), rel, self.error)
 
     def npz(self, rel: str, where: Where, required: tuple[str, ...]) -> dict[str, np.ndarray]:
-        path = self.resolve(rel, where)
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise self.error(f"{rel}: not a readable .npz file ({exc})") from None
+        arrays = load_npz(self.resolve(rel, where), rel, self.error)
         for key in required:
             if key not in arrays:
                 have = ", ".join(sorted(arrays)) or "nothing"
