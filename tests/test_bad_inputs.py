@@ -288,3 +288,33 @@ def test_a_camera_clock_offset_by_an_epoch_ends_in_a_clean_error_not_terabytes(t
 
 def test_the_error_type_is_the_one_users_see():
     assert issubclass(CaptureError, MocapgraphError) and issubclass(ResultError, MocapgraphError)
+
+
+# --- importers: calibrations and keypoint files -------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "message"),
+    [
+        ("calib.json", b"[" * 100000 + b"]" * 100000, r"calib.json: not valid JSON \(nested too deeply\)"),
+        ("calib.toml", b"x = " + b"[" * 5000 + b"]" * 5000, r"calib.toml: not valid TOML \(nested too deeply\)"),
+        ("calib.json", b'{"cam": "\xff"}', r"calib.json: not a text file; calibrations are .* \(byte 9 is not UTF-8\)"),
+    ],
+)
+def test_a_damaged_calibration_file_is_refused(tmp_path, name, content, message):
+    from mocapgraph.data_tools.io.calibration import read_calibration
+
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(CaptureError, match=message):
+        read_calibration(tmp_path / name)
+
+
+def test_a_keypoint_array_with_a_huge_header_is_refused(tmp_path):
+    from mocapgraph.data_tools.io.keypoint_files import read_keypoint_array
+
+    (tmp_path / "kp.npy").write_bytes(huge_header())
+    with pytest.raises(CaptureError, match=r"kp.npy: shape \(1000000000000, 22, 3\) would need"):
+        read_keypoint_array(tmp_path / "kp.npy")
+    (tmp_path / "kp.npz").write_bytes(b"PK\x03\x04 cut")
+    with pytest.raises(CaptureError, match=r"kp.npz: not a readable .npz file"):
+        read_keypoint_array(tmp_path / "kp.npz")
