@@ -140,11 +140,11 @@ def cmd_run_online(args) -> None:
     import time
 
     from mocapgraph.data_tools.io.capture import load_capture
-    from mocapgraph.data_tools.io.files import refuse_existing
-    from mocapgraph.data_tools.io.result import write_result
+    from mocapgraph.data_tools.io.files import reserve_output
+    from mocapgraph.data_tools.io.result import MANIFEST, write_result
     from mocapgraph.pipelines.online import run_online, summary
 
-    refuse_existing(args.out, args.overwrite)
+    reserve_output(args.out, args.overwrite, MANIFEST, inputs=[args.capture])
     capture = load_capture(args.capture)
     shown = [0.0]
 

@@ -534,6 +534,7 @@ def write_capture(capture: Capture, path: str | Path, overwrite: bool = False) -
         lambda tmp: _write_into(capture, tmp),
         lambda tmp: load_capture(tmp, repair=False),
         CaptureError,
+        replaces=MANIFEST,
     )
 
 

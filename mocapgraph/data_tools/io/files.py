@@ -3,8 +3,12 @@ and the field, and writes that never leave a half-written directory in place of 
 
 from __future__ import annotations
 
+import fcntl
+import glob
+import logging
 import os
 import shutil
+import signal
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -13,6 +17,8 @@ import numpy as np
 
 from mocapgraph.data_tools.io.checks import LIMITS, check_limit, load_npy, load_npz, parse_toml, plain_numbers, read_text, resolve_inside
 from mocapgraph.errors import MocapgraphError
+
+log = logging.getLogger(__name__)
 
 
 class Where:
@@ -173,37 +179,195 @@ def refuse_existing(path: Path, overwrite: bool, error: type[MocapgraphError] = 
         raise error(f"{path}: already exists (pass overwrite=True / --overwrite to replace it)")
 
 
+# ---------------------------------------------------------------------------------------------
+# Output directories: reserved before the work, replaced so that a kill leaves the old or the new.
+#
+# A write of OUT holds ``.OUT.lock`` (an flock, released by the kernel when the process dies)
+# from the reservation to the end of the write. Under it, the write goes to ``.OUT.tmp-*``; a
+# replace moves the old OUT to ``.OUT.old-PID``, the new one into place, then deletes the old.
+# The next reservation of OUT repairs what a kill can leave: OUT missing with ``.OUT.old-*``
+# (killed between the two renames) is restored, stale ``.OUT.tmp-*`` / ``.OUT.old-*`` deleted.
+
+_HELD: dict[Path, tuple[int, Path]] = {}
+"""Reservations this process holds: resolved OUT → (lock file descriptor, lock path)."""
+
+KILL_AT_ENV = "MOCAPGRAPH_KILL_AT"
+"""Tests set it to a step of :func:`write_directory_atomically` (``written``, ``old-aside``,
+``new-in-place``) to SIGKILL the writing process exactly there."""
+
+
+def _kill_point(step: str) -> None:
+    if os.environ.get(KILL_AT_ENV) == step:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _siblings(path: Path, kind: str) -> list[Path]:
+    """``.NAME.<kind>-*`` next to ``path``, oldest first."""
+    found = path.parent.glob(f".{glob.escape(path.name)}.{kind}-*")
+    return sorted(found, key=lambda p: p.lstat().st_mtime)
+
+
+def _recover(path: Path) -> None:
+    """Undo what a killed write of ``path`` left (call with its lock held)."""
+    olds = _siblings(path, "old")
+    if olds and not os.path.lexists(path):
+        previous = olds.pop()
+        os.replace(previous, path)
+        log.warning("%s: missing after an interrupted replace; restored its previous version from %s", path, previous.name)
+    for stale in olds + _siblings(path, "tmp"):
+        shutil.rmtree(stale, ignore_errors=True)
+
+
+def _lock(path: Path, error: type[MocapgraphError]) -> tuple[int, Path]:
+    lock = path.parent / f".{path.name}.lock"
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise error(f"{path}: another mocapgraph process (pid {holder}) is writing it; wait for it, or write elsewhere") from None
+        try:
+            if os.fstat(fd).st_ino == os.stat(lock).st_ino:  # not a lock file its last holder just unlinked
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    return fd, lock
+
+
+def _check_replaceable(path: Path, overwrite: bool, replaces: str, error: type[MocapgraphError]) -> None:
+    """``path`` may be written: it does not exist, or ``overwrite`` and it is an empty directory
+    or a mocapgraph directory (one holding the manifest ``replaces``)."""
+    if not os.path.lexists(path):
+        return
+    kind = "result" if replaces == "result.toml" else "capture" if replaces == "capture.toml" else f"directory with {replaces}"
+    if not overwrite:
+        raise error(f"{path}: already exists (pass --overwrite to replace it)")
+    if path.is_symlink() or not path.is_dir():
+        raise error(f"{path}: not a directory; --overwrite only replaces a mocapgraph {kind} (remove it yourself if it must go)")
+    if any(path.iterdir()) and not (path / replaces).is_file():
+        raise error(f"{path}: not a mocapgraph {kind} (no {replaces}); --overwrite only replaces those (remove it yourself if it must go)")
+
+
+def reserve_output(
+    path: str | Path, overwrite: bool, replaces: str, *, inputs=(), error: type[MocapgraphError] = MocapgraphError
+) -> Path:
+    """Check and reserve the output directory ``path`` before any work, or raise ``error``.
+
+    ``replaces`` is the manifest that marks a directory ``overwrite`` may replace
+    (``result.toml``, ``capture.toml``); ``inputs`` are the command's input paths, which ``path``
+    must neither be nor contain. The folder is created, a lock taken (another process writing
+    ``path`` is refused) and what a killed earlier write left is repaired. The reservation lasts
+    until :func:`release_output` (which :func:`write_directory_atomically` calls when done).
+    """
+    path = Path(path)
+    try:
+        key = path.resolve()
+        if key in _HELD:
+            return path
+        for given in inputs:
+            source = Path(given).resolve()
+            if key == source or key in source.parents:
+                raise error(f"{path}: is {'the' if key == source else 'a folder around the'} command's input {given}; write the output elsewhere")
+        if len(path.name.encode()) > 200:  # its .NAME.tmp-XXXXXXXX sibling must fit in 255 bytes too
+            raise error(f"{path}: name too long ({len(path.name.encode())} bytes; at most 200)")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except FileExistsError:  # a file where the folder should be: said below
+            pass
+        if not path.parent.is_dir():
+            raise error(f"{path}: cannot be written ({path.parent} is not a directory)")
+        fd, lock = _lock(path, error)
+    except OSError as exc:
+        raise error(f"{path}: cannot be written ({exc.strerror or exc})") from None
+    except ValueError as exc:  # a NUL byte in the path
+        raise error(f"{path}: cannot be written ({exc})") from None
+    _HELD[key] = (fd, lock)
+    try:
+        _recover(path)
+        _check_replaceable(path, overwrite, replaces, error)
+    except BaseException:
+        release_output(path)
+        raise
+    return path
+
+
+def release_output(path: str | Path) -> None:
+    """End the reservation of ``path`` (nothing when this process holds none)."""
+    held = _HELD.pop(Path(path).resolve(), None)
+    if held is not None:
+        fd, lock = held
+        Path(lock).unlink(missing_ok=True)
+        os.close(fd)
+
+
+def release_outputs() -> None:
+    """End every reservation this process holds (a command that failed before writing)."""
+    for key in list(_HELD):
+        release_output(key)
+
+
 def write_directory_atomically(
     path: Path,
     overwrite: bool,
     write: Callable[[Path], None],
     validate: Callable[[Path], object],
     error: type[MocapgraphError],
+    *,
+    replaces: str,
 ) -> Path:
     """Run ``write(tmp)`` into a temporary sibling of ``path``, ``validate(tmp)``, then swap it in.
 
-    On any failure the temporary directory is removed and whatever was at ``path`` stays.
+    ``path`` is reserved as by :func:`reserve_output` (unless this process already holds it) and
+    released when written. On any failure the temporary directory is removed and whatever was at
+    ``path`` stays; a kill at any instant leaves the old directory or the new one (or the old one
+    at ``.NAME.old-PID``, put back by the next reservation).
     """
-    refuse_existing(path, overwrite, error)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
+    path = Path(path)
+    reserve_output(path, overwrite, replaces, error=error)
+    try:
+        _write_and_swap(path, overwrite, write, validate, error, replaces)
+    finally:
+        release_output(path)
+    return path
+
+
+def _write_and_swap(path: Path, overwrite: bool, write, validate, error: type[MocapgraphError], replaces: str) -> None:
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
+    except OSError as exc:
+        raise error(f"{path}: cannot be written ({exc.strerror or exc})") from None
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; the result is an ordinary directory
     try:
         write(tmp)
         validate(tmp)  # never move an unreadable directory into place
-        if path.exists():
+        _kill_point("written")
+        if os.path.lexists(path):
+            _check_replaceable(path, overwrite, replaces, error)  # it may have appeared during the run
             old = path.with_name(f".{path.name}.old-{os.getpid()}")
             os.replace(path, old)
-            os.replace(tmp, path)
+            _kill_point("old-aside")
+            try:
+                os.replace(tmp, path)
+            except BaseException:
+                os.replace(old, path)
+                raise
+            _kill_point("new-in-place")
             shutil.rmtree(old)
         else:
             os.replace(tmp, path)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise error(f"{path}: cannot be written ({exc.strerror or exc})") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return path
 
 
 def write_file_atomically(
@@ -215,8 +379,13 @@ def write_file_atomically(
     """
     path = Path(path)
     refuse_existing(path, overwrite, error)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
+    if path.is_dir():
+        raise error(f"{path}: is a directory; name a file")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
+    except (OSError, ValueError) as exc:
+        raise error(f"{path}: cannot be written ({getattr(exc, 'strerror', None) or exc})") from None
     os.close(fd)
     try:
         write(Path(tmp))
@@ -224,6 +393,9 @@ def write_file_atomically(
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; the export is an ordinary file
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise error(f"{path}: cannot be written ({exc.strerror or exc})") from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -215,7 +215,7 @@ def _require_arrays(arrays: dict, keys: tuple[str, ...], at: Where, why: str) ->
 def write_result(result: Result, path: str | Path, overwrite: bool = False) -> Path:
     """Write ``result`` at ``path`` atomically (validated by reading it back first)."""
     return write_directory_atomically(
-        Path(path), overwrite, lambda tmp: _write_into(result, tmp), load_result, ResultError
+        Path(path), overwrite, lambda tmp: _write_into(result, tmp), load_result, ResultError, replaces=MANIFEST
     )
 
 
