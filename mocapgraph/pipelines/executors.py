@@ -108,6 +108,20 @@ def _with_context(fn: Callable, item):
 _PR_SET_PDEATHSIG = 1
 
 
+def worker_threads(workers: int) -> int:
+    """Threads each of ``workers`` processes may use so that together they fill, not
+    oversubscribe, the cores this process may run on."""
+    return max(1, len(os.sched_getaffinity(0)) // workers) if hasattr(os, "sched_getaffinity") else 1
+
+
+def _init_worker(parent: int, threads: int) -> None:
+    """A pool worker's start: die with ``parent``; torch and OpenMP on ``threads`` threads."""
+    die_with_parent(parent)
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    if "torch" in sys.modules:  # forked from a parent that loaded it: set it here, not only for later imports
+        sys.modules["torch"].set_num_threads(threads)
+
+
 def die_with_parent(parent: int) -> None:
     """Make this process (a pool worker) die when process ``parent`` does.
 
@@ -176,8 +190,9 @@ class LocalExecutor(Executor):
             # inherit this context.
             _CONTEXT, self._pool_context = context, context
             self._pool = ProcessPoolExecutor(
-                self.workers, mp_context=multiprocessing.get_context("fork"), initializer=die_with_parent, initargs=(os.getpid(),)
-            )
+                self.workers, mp_context=multiprocessing.get_context("fork"), initializer=_init_worker,
+                initargs=(os.getpid(), worker_threads(self.workers)),
+            )  # fmt: skip
         return self._pool
 
     def close(self) -> None:
