@@ -226,12 +226,14 @@ def test_clocks_that_would_explode_a_time_grid_are_refused(unit, stamps, message
 # --- paths ------------------------------------------------------------------------------------
 
 
-def test_a_nul_byte_or_a_symlink_loop_in_a_path_is_refused(unit):
+def test_a_nul_byte_a_symlink_loop_or_a_long_name_in_a_path_is_refused(unit):
     edit_manifest(unit, f'timestamps = "{TIMESTAMPS}"', 'timestamps = "cameras/\\u0000x.npy"')
     refused(unit, r"cameras.static0.timestamps: path 'cameras/\\x00x.npy' cannot be used \(embedded null byte\)")
     edit_manifest(unit, 'timestamps = "cameras/\\u0000x.npy"', 'timestamps = "loop.npy"')
     (unit / "loop.npy").symlink_to("loop.npy")
     refused(unit, r"cameras.static0.timestamps: path 'loop.npy' cannot be used \(.*[Ss]ymlink loop")
+    edit_manifest(unit, 'timestamps = "loop.npy"', f'timestamps = "{"a" * 5000}"')
+    refused(unit, r"cameras.static0.timestamps: path 'a+' cannot be used \(\[Errno 36\] File name too long")
     assert main(["capture", "info", str(unit)]) == 2
 
 
