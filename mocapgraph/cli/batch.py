@@ -14,11 +14,12 @@ def cmd_batch(args) -> None:
 
     start = time.perf_counter()
     outcomes = run_batch(
-        args.pipeline, args.captures, args.out, executor=args.executor, workers=args.workers, address=args.address, overwrite=args.overwrite
+        args.pipeline, args.captures, args.out, executor=args.executor, workers=args.workers, address=args.address,
+        overwrite=args.overwrite, resume=args.resume,
     )  # fmt: skip
     width = max(len(o.name) for o in outcomes)
     for o in outcomes:
-        status = f"ok ({o.frames} frames)" if o.ok else f"failed: {o.message}"
+        status = f"ok ({o.frames} frames{', ' + o.message if o.message else ''})" if o.ok else f"failed: {o.message}"
         print(f"{o.name:{width}s}  {o.seconds:7.1f} s  {status}")
     failed = [o.name for o in outcomes if not o.ok]
     print(f"total: {len(outcomes) - len(failed)} of {len(outcomes)} captures ok in {time.perf_counter() - start:.1f} s, results in {args.out}")
@@ -46,4 +47,5 @@ def add_parsers(subparsers) -> None:
          "workers": "local processes, or CPUs of a local Ray instance"},
     )  # fmt: skip
     parser.add_argument("--overwrite", action="store_true", help="replace existing results")
+    parser.add_argument("--resume", action="store_true", help="keep the results a stopped batch already wrote and run the rest")
     parser.set_defaults(func=cmd_batch)

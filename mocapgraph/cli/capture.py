@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.cli.common import command, group
-from mocapgraph.data_tools.io.files import refuse_existing
+from mocapgraph.data_tools.io.files import reserve_output
 from mocapgraph.errors import MocapgraphError
 
 
@@ -146,10 +146,12 @@ def _array_path(item: str) -> tuple[str, Path, str | None]:
 
 
 def cmd_import(args) -> None:
+    from mocapgraph.data_tools.io.capture import MANIFEST as CAPTURE_MANIFEST
     from mocapgraph.data_tools.io.importers import assemble_capture, video_info
     from mocapgraph.data_tools.io.keypoint_files import AUTO, OPENPOSE_SUFFIX, read_json_keypoints, read_keypoint_array
 
-    refuse_existing(args.out, args.overwrite)
+    inputs = [p for p in (args.pose2sim, args.calibration, *(args.openpose or []), *(args.keypoints or []), *(args.videos or [])) if p]
+    reserve_output(args.out, args.overwrite, CAPTURE_MANIFEST, inputs=[_named_path(str(p))[1] for p in inputs])  # never into an input
     person = _person(args.person)
     keypoints: dict[str, tuple] = {}
 

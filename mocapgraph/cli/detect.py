@@ -9,7 +9,7 @@ from pathlib import Path
 
 from mocapgraph.cli.capture import add_capture_flags, calibration_from_args, moving_from_args, print_summary, videos_from_args
 from mocapgraph.cli.common import command, function_flags
-from mocapgraph.data_tools.io.files import refuse_existing
+from mocapgraph.data_tools.io.files import reserve_output
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.progress import progress_bar
 
@@ -32,11 +32,12 @@ def _expand_folders(items: list[str]) -> list[str]:
 
 
 def cmd_detect(args) -> None:
+    from mocapgraph.data_tools.io.capture import MANIFEST as CAPTURE_MANIFEST
     from mocapgraph.data_tools.io.importers import video_info
     from mocapgraph.data_tools.tracking import detect_video as dv
     from mocapgraph.data_tools.tracking.people import parse_person, track_people, write_person_capture
 
-    refuse_existing(args.out, args.overwrite)
+    reserve_output(args.out, args.overwrite, CAPTURE_MANIFEST, inputs=args.videos)
     person = parse_person(args.person)
     if args.max_people < 1:
         raise MocapgraphError(f"--max-people must be at least 1, got {args.max_people}")

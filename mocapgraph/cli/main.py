@@ -24,11 +24,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbosity)
+    from mocapgraph.data_tools.io.files import release_outputs
+
     try:
         args.func(args)
     except MocapgraphError as exc:
         print(f"mocapgraph: error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        release_outputs()  # outputs reserved by a command that stopped before writing them
     return 0
 
 

@@ -17,9 +17,25 @@ def _capture_args(parser) -> None:
 
 
 def cmd_run(args) -> None:
+    import shutil
+
+    from mocapgraph.data_tools.io.files import reserve_output
+    from mocapgraph.data_tools.io.result import MANIFEST
     from mocapgraph.pipelines.runner import run_capture, summary
 
-    result = run_capture(args.pipeline, args.capture, args.out, args.options_from(args), overwrite=args.overwrite)
+    options = args.options_from(args)
+    checkpoint = None
+    if args.pipeline == "smartmocap":
+        # Solved chunks are kept beside OUT until it is written: --resume reads them back. OUT is
+        # reserved first, so that another run's chunks are never touched.
+        reserve_output(args.out, args.overwrite, MANIFEST, inputs=[args.capture])
+        checkpoint = args.out.parent / f".{args.out.name}.chunks"
+        if not args.resume:
+            shutil.rmtree(checkpoint, ignore_errors=True)
+        options.checkpoint = str(checkpoint)
+    result = run_capture(args.pipeline, args.capture, args.out, options, overwrite=args.overwrite)
+    if checkpoint is not None:
+        shutil.rmtree(checkpoint, ignore_errors=True)
     print(summary(args.pipeline, result))
     print(f"wrote {args.out}")
 
@@ -112,6 +128,7 @@ def add_parsers(subparsers) -> None:
     flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
     flags.add("keypoint_offsets", "no last pass with the detector's keypoint-definition offsets (nor its outlier views left out)")
     flags.add("covariances", "skip the marginal covariances")
+    smartmocap.add_argument("--resume", action="store_true", help="after a run that was stopped: keep the chunks it solved, solve the rest")
 
     for parser in (baseline, aircap, airpose, smartmocap):
         parser.set_defaults(func=cmd_run)
@@ -140,11 +157,11 @@ def cmd_run_online(args) -> None:
     import time
 
     from mocapgraph.data_tools.io.capture import load_capture
-    from mocapgraph.data_tools.io.files import refuse_existing
-    from mocapgraph.data_tools.io.result import write_result
+    from mocapgraph.data_tools.io.files import reserve_output
+    from mocapgraph.data_tools.io.result import MANIFEST, write_result
     from mocapgraph.pipelines.online import run_online, summary
 
-    refuse_existing(args.out, args.overwrite)
+    reserve_output(args.out, args.overwrite, MANIFEST, inputs=[args.capture])
     capture = load_capture(args.capture)
     shown = [0.0]
 

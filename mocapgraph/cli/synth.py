@@ -6,11 +6,11 @@ from mocapgraph.cli.common import command, detector_list, function_flags, out_ar
 
 
 def cmd_synth(args) -> None:
-    from mocapgraph.data_tools.io.capture import write_capture
-    from mocapgraph.data_tools.io.files import refuse_existing
+    from mocapgraph.data_tools.io.capture import MANIFEST, write_capture
+    from mocapgraph.data_tools.io.files import reserve_output
     from mocapgraph.data_tools.sim.synthetic import synthesize
 
-    refuse_existing(args.out, args.overwrite)
+    reserve_output(args.out, args.overwrite, MANIFEST)
     capture = synthesize(
         args.preset, seed=args.seed, duration_s=args.duration_s, motion=args.motion, detectors=args.detectors,
         detector_faults=args.detector_faults, image_scale=args.image_scale,

@@ -35,6 +35,9 @@ from mocapgraph.errors import MocapgraphError
 SYNC_POLICIES = ("grid", "states", "closest")
 _SNAP = 1e-6
 """A grid fraction this close to 0 or 1 is snapped to the grid state (33 ns at 30 Hz)."""
+# A grid past this size is a clock offset between cameras (an epoch clock beside a zero-based
+# one), not a capture: a day at 100 Hz is 8.6e6 states.
+_MAX_GRID_STATES = 10_000_000
 
 
 @dataclass
@@ -73,6 +76,11 @@ def _grid(timestamps: list[np.ndarray], rate_hz: float) -> Timeline:
     period = 1.0 / rate_hz
     start, end = t[0], t[-1]
     count = math.ceil((end - start) / period - _SNAP) + 1  # the last state at or after the last frame
+    if count > _MAX_GRID_STATES:
+        raise MocapgraphError(
+            f"grid: the frames span {end - start:.4g} s, which at {rate_hz:g} Hz is {count:.3g} body states "
+            f"(at most {_MAX_GRID_STATES:.0e}); do the cameras' clocks share one time axis?"
+        )
     state, fraction = _empty(timestamps)
     position = (t - start) / period
     k = np.minimum(np.floor(position).astype(int), count - 1)

@@ -333,13 +333,31 @@ def _match_frames(cams: list[Camera], max_offset: float | None, min_views: int) 
     # Extend so every other camera's frame lies within half a period of some reference time.
     n_before = max(0, int(np.ceil((base[0] - lo) / period - 0.5)))
     n_after = max(0, int(np.ceil((hi - base[-1]) / period - 0.5)))
-    before = base[0] - period * np.arange(n_before, 0, -1)
-    after = base[-1] + period * np.arange(1, n_after + 1)
-    times = np.concatenate([before, base, after])
-    own = np.zeros(len(times), dtype=bool)
-    own[n_before : n_before + len(base)] = True
-
     limits = [0.5 / cam.frame_rate if max_offset is None else max_offset for cam in cams]
+    # Only the grid times some frame can match are built: over the whole span, clocks offset by
+    # years or a camera's 1e-6 s steps would ask for billions of reference times, nearly all empty.
+    before, after = [], []
+    for cam, limit in zip(cams, limits):
+        reach = limit * (1 + 1e-9) + 1e-12
+        ts = np.asarray(cam.timestamps, dtype=float)
+        for side, origin, sign, count in ((before, base[0], -1.0, n_before), (after, base[-1], 1.0, n_after)):
+            d = sign * (ts - origin) / period  # grid steps away from the base, on this side
+            first = np.maximum(np.ceil(d - reach / period - 1e-9), 1)  # a candidate too many is harmless
+            last = np.minimum(np.floor(d + reach / period + 1e-9), count)
+            n = np.maximum(last - first + 1, 0).astype(np.int64)
+            if n.sum() > max(64 * (len(ts) + len(base)), 1_000_000):
+                raise MocapgraphError(
+                    f"camera {cam.name!r}: its matching tolerance {limit:.4g} s spans {float(n.max()):.3g} frame periods "
+                    f"({period:.4g} s) of camera {cams[0].name!r}; do the frame rates and timestamps agree?"
+                )
+            start = np.repeat(first[n > 0].astype(np.int64), n[n > 0])
+            side.append(start + np.arange(len(start)) - np.repeat(np.cumsum(n[n > 0]) - n[n > 0], n[n > 0]))
+    k_before = np.unique(np.concatenate(before))[::-1]
+    k_after = np.unique(np.concatenate(after))
+    times = np.concatenate([base[0] - period * k_before, base, base[-1] + period * k_after])
+    own = np.zeros(len(times), dtype=bool)
+    own[len(k_before) : len(k_before) + len(base)] = True
+
     # A hair of slack so a frame exactly half a period away is not lost to rounding.
     frame_of = np.stack(
         [match_times(cam.timestamps, times, limit, rtol=1e-9, atol=1e-12) for cam, limit in zip(cams, limits)]

@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from mocapgraph.data_tools.io.result import MANIFEST, load_result
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.pipelines.executors import TaskError, describe_exception, make_executor
 from mocapgraph.pipelines.runner import pipeline as find_pipeline
@@ -53,13 +54,17 @@ def _run_one(job: tuple[str, str, str, bool]) -> Outcome:
 
 def run_batch(
     pipeline: str, captures: list[Path], out: Path, executor: str = "local", workers: int = 2,
-    address: str | None = None, overwrite: bool = False,
+    address: str | None = None, overwrite: bool = False, resume: bool = False,
 ) -> list[Outcome]:  # fmt: skip
     """Run ``pipeline`` on every capture directory, writing ``out/<capture name>/``.
 
     Everything the tasks would trip over at once (unknown pipeline, missing captures, two
     captures with one name, results already there without ``overwrite``) is raised as one
     MocapgraphError before any task starts. Returns one :class:`Outcome` per capture, in order.
+
+    ``resume`` continues a batch that was stopped: a capture whose result of ``pipeline`` is
+    already there (results are written atomically, so one that loads is whole) is kept as it is
+    and reported with 0 seconds; the others run.
     """
     find_pipeline(pipeline)  # an unknown name is refused before any task starts
     if not captures:
@@ -77,16 +82,35 @@ def run_batch(
         listed = "; ".join(f"{name}: {', '.join(paths)}" for name, paths in clashes.items())
         raise MocapgraphError(f"captures share a directory name, so their results would share {out}/<name>: {listed}")
     out = Path(out).resolve()
-    existing = [str(out / c.name) for c in captures if (out / c.name).exists()]
+    if resume and overwrite:
+        raise MocapgraphError("--resume keeps the results already written and --overwrite replaces them: choose one")
+    kept = _finished(pipeline, captures, out) if resume else {}
+    existing = [str(out / c.name) for c in captures if c.name not in kept and (out / c.name).exists()]
     if existing and not overwrite:
-        raise MocapgraphError(f"results already exist (use --overwrite to replace them): {', '.join(existing)}")
+        hint = "" if resume else "; --resume keeps the finished ones"
+        raise MocapgraphError(f"results already exist (use --overwrite to replace them{hint}): {', '.join(existing)}")
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [(pipeline, str(c), str(out / c.name), overwrite) for c in captures]
+    todo = [c for c in captures if c.name not in kept]
+    jobs = [(pipeline, str(c), str(out / c.name), overwrite) for c in todo]
     with make_executor(executor, workers, address) as pool:
         try:
-            return pool.map(_run_one, jobs, progress="batch")
+            done = pool.map(_run_one, jobs, progress="batch") if jobs else []
         except TaskError as exc:  # a worker died: keep the captures that finished
-            return [
-                r if r is not None else Outcome(captures[i].name, False, exc.failures[i], float("nan"))
-                for i, r in enumerate(exc.results)
-            ]
+            done = [r if r is not None else Outcome(todo[i].name, False, exc.failures[i], float("nan")) for i, r in enumerate(exc.results)]
+    by_name = {**kept, **{o.name: o for o in done}}
+    return [by_name[c.name] for c in captures]
+
+
+def _finished(pipeline: str, captures: list[Path], out: Path) -> dict[str, Outcome]:
+    """The captures whose result of ``pipeline`` is already under ``out``, by name."""
+    kept = {}
+    for c in captures:
+        if not (out / c.name / MANIFEST).is_file():
+            continue
+        try:
+            result = load_result(out / c.name)
+        except MocapgraphError:
+            continue  # not a readable result: left to the existing-output check
+        if result.pipeline == pipeline:
+            kept[c.name] = Outcome(c.name, True, "kept from an earlier run", 0.0, len(result.timestamps))
+    return kept

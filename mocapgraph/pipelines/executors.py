@@ -8,9 +8,14 @@
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import logging
 import os
+import signal
+import sys
+import threading
+import time
 from typing import Callable
 
 from mocapgraph.errors import MocapgraphError
@@ -100,6 +105,47 @@ def _with_context(fn: Callable, item):
     return fn(_CONTEXT, item)
 
 
+_PR_SET_PDEATHSIG = 1
+
+
+def worker_threads(workers: int) -> int:
+    """Threads each of ``workers`` processes may use so that together they fill, not
+    oversubscribe, the cores this process may run on."""
+    return max(1, len(os.sched_getaffinity(0)) // workers) if hasattr(os, "sched_getaffinity") else 1
+
+
+def _init_worker(parent: int, threads: int) -> None:
+    """A pool worker's start: die with ``parent``; torch and OpenMP on ``threads`` threads."""
+    die_with_parent(parent)
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    if "torch" in sys.modules:  # forked from a parent that loaded it: set it here, not only for later imports
+        sys.modules["torch"].set_num_threads(threads)
+
+
+def die_with_parent(parent: int) -> None:
+    """Make this process (a pool worker) die when process ``parent`` does.
+
+    A worker left behind after its parent was killed goes on computing for minutes and keeps the
+    parent's stdout and stderr open, so whoever waits on those pipes hangs. Linux delivers SIGKILL
+    at the parent's death (``prctl(PR_SET_PDEATHSIG)``); elsewhere a daemon thread watches for
+    the worker's adoption by another process. A parent already gone before this ran is caught by
+    the pid check.
+    """
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    else:
+        def watch() -> None:
+            while os.getppid() == parent:
+                time.sleep(0.5)
+            os._exit(1)
+
+        threading.Thread(target=watch, name="die-with-parent", daemon=True).start()
+    if os.getppid() != parent:
+        os._exit(1)
+
+
 class LocalExecutor(Executor):
     """``workers`` forked processes on this machine; ``workers == 1`` runs every task in this process.
 
@@ -143,7 +189,10 @@ class LocalExecutor(Executor):
             # A fork pool starts all its workers at the first submit, which follows at once: they
             # inherit this context.
             _CONTEXT, self._pool_context = context, context
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("fork"))
+            self._pool = ProcessPoolExecutor(
+                self.workers, mp_context=multiprocessing.get_context("fork"), initializer=_init_worker,
+                initargs=(os.getpid(), worker_threads(self.workers)),
+            )  # fmt: skip
         return self._pool
 
     def close(self) -> None:

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from mocapgraph.data_tools.io.capture import load_capture
-from mocapgraph.data_tools.io.files import refuse_existing
-from mocapgraph.data_tools.io.result import Result, write_result
+from mocapgraph.data_tools.io.files import release_output, reserve_output
+from mocapgraph.data_tools.io.result import MANIFEST, Result, write_result
 from mocapgraph.errors import MocapgraphError
 
 
@@ -51,12 +51,16 @@ def pipeline(name: str) -> Pipeline:
 
 def run_capture(name: str, capture_path: Path, out: Path, options=None, overwrite: bool = False) -> Result:
     """Run pipeline ``name`` (default options unless given) on the capture at ``capture_path``
-    and write the result at ``out`` (refused before the run when it exists, unless ``overwrite``)."""
+    and write the result at ``out``, reserved before the run (:func:`reserve_output`: refused when
+    it exists, unless ``overwrite`` and it is a result; never the capture itself)."""
     p = pipeline(name)
-    refuse_existing(Path(out), overwrite)
-    run: Callable = p.attribute("run")
-    result = run(load_capture(capture_path), options if options is not None else p.default_options(), capture_label=str(capture_path))
-    write_result(result, out, overwrite=overwrite)
+    reserve_output(out, overwrite, MANIFEST, inputs=[capture_path])
+    try:
+        run: Callable = p.attribute("run")
+        result = run(load_capture(capture_path), options if options is not None else p.default_options(), capture_label=str(capture_path))
+        write_result(result, out, overwrite=overwrite)
+    finally:
+        release_output(out)
     return result
 
 

@@ -21,9 +21,13 @@ a weak one, so the data decide them. The scale comes from the body model's size 
 
 from __future__ import annotations
 
+import hashlib
 import logging
+import os
+import pickle
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import gtsam
 import numpy as np
@@ -102,6 +106,10 @@ class SmartmocapOptions:
     # Moving cameras: a constant-velocity model, so that the final pass may relabel their whole
     # body (a camera without it goes round the person to explain a swap: 6 m on rich, 2 s).
     graph: GraphOptions = field(default_factory=lambda: GraphOptions(shape="estimate", moving_body_swaps=True, camera_sigma_m_s2=4.0))
+    # A directory where each chunk's solution is kept as it finishes, and read back instead of
+    # solved again by a later run of the same chunk (``run smartmocap --resume`` after a kill);
+    # where the run keeps its work, not how it solves: left out of the result's parameters.
+    checkpoint: str | None = None
 
     def check(self) -> None:
         self.graph.check()
@@ -300,6 +308,45 @@ def initial_estimate(model: StateModel, body: BodyModel, options: SmartmocapOpti
     return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, cameras), placed, used
 
 
+def _solve_chunks(tasks: list[ChunkTask], options: SmartmocapOptions) -> list[tuple[Estimate, float]]:
+    """Every chunk's solution and seconds, in order; with ``options.checkpoint``, those kept by an
+    earlier run are read back and the others kept as they finish."""
+    if options.checkpoint is None:
+        with make_executor(options.executor, options.workers, options.address) as executor:
+            return executor.map(solve_chunk, tasks, progress="smartmocap chunks")
+    Path(options.checkpoint).mkdir(parents=True, exist_ok=True)
+    files = [_chunk_file(options.checkpoint, task) for task in tasks]
+    solved: dict[int, tuple[Estimate, float]] = {}
+    for i, file in enumerate(files):
+        if file.is_file():
+            with open(file, "rb") as f:
+                solved[i] = pickle.load(f)  # written by solve_and_keep_chunk, whole (renamed into place)
+    todo = [i for i in range(len(tasks)) if i not in solved]
+    log.info("smartmocap: %d of %d chunks kept from an earlier run (%s)", len(solved), len(tasks), options.checkpoint)
+    with make_executor(options.executor, options.workers, options.address) as executor:
+        fresh = executor.map(solve_and_keep_chunk, [(tasks[i], str(files[i])) for i in todo], progress="smartmocap chunks")
+    solved.update(zip(todo, fresh))
+    return [solved[i] for i in range(len(tasks))]
+
+
+def _chunk_file(directory: str, task: ChunkTask) -> Path:
+    """Where a chunk's solution is kept: named by a digest of everything its solve depends on."""
+    digest = hashlib.sha256(pickle.dumps((task.model, task.start, replace(task.options, checkpoint=None)))).hexdigest()
+    return Path(directory) / f"chunk-{digest[:24]}.pkl"
+
+
+def solve_and_keep_chunk(job: tuple[ChunkTask, str]) -> tuple[Estimate, float]:
+    """:func:`solve_chunk`, its solution then written to ``file`` (a temporary name, then renamed,
+    so a kill never leaves half a file there)."""
+    task, file = job
+    solved = solve_chunk(task)
+    tmp = f"{file}.tmp-{os.getpid()}"
+    with open(tmp, "wb") as f:
+        pickle.dump(solved, f)
+    os.replace(tmp, file)
+    return solved
+
+
 def _degeneracy_notes(model: StateModel, placed: list[bool]) -> list[str]:
     notes = ["absolute scale: from the body model's size (shape prior) alone; the shape's covariance carries it"]
     used = [c for c in range(model.num_cameras) if placed[c]]
@@ -337,8 +384,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     bounds = chunk_bounds(n, options.chunk_size)
     log.info("smartmocap: %d body states, %d chunks of <= %d, executor %s (%d workers)", n, len(bounds), options.chunk_size, options.executor, options.workers)
     tasks = [ChunkTask(model.span(a, b), start.span(a, b), options) for a, b in bounds]
-    with make_executor(options.executor, options.workers, options.address) as executor:
-        solved = executor.map(solve_chunk, tasks, progress="smartmocap chunks")
+    solved = _solve_chunks(tasks, options)
     chunk_seconds = [s for _, s in solved]
     stitched = stitch(body, model, [(a, b, est) for (a, b), (est, _) in zip(bounds, solved)])
     log.info("smartmocap: chunks %.2f s median; stitched; final optimisation", np.median(chunk_seconds))
@@ -390,7 +436,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
     result = estimate_result(
-        "smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(options), capture_label, cameras=placed_cameras, swaps=swaps
+        "smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(replace(options, checkpoint=None)), capture_label, cameras=placed_cameras, swaps=swaps
     )
     if options.covariances:
         result.covariances.update(bg.covariances(graph, solved_final.values, estimate))

@@ -8,7 +8,6 @@ camera).
 
 from __future__ import annotations
 
-import json
 import logging
 import re
 import tomllib
@@ -21,6 +20,7 @@ import numpy as np
 
 from mocapgraph.body.rotations import nearest_rotation, rotvec_to_matrix
 from mocapgraph.data_tools.io.capture import CaptureError, world_T_camera_from_Rt
+from mocapgraph.data_tools.io.checks import parse_json, read_text
 
 log = logging.getLogger(__name__)
 
@@ -303,10 +303,7 @@ def read_calibration(path: str | Path, units: str | None = None) -> list[CameraC
         raise CaptureError(f"{path}: unknown units {units!r}; use one of {', '.join(UNITS)}")
     if not path.is_file():
         raise CaptureError(f"{path}: calibration file not found")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise CaptureError(f"{path}: not a text file; calibrations are OpenCV YAML/XML/JSON, JSON, TOML or Qualisys .qca.txt") from None
+    text = read_text(path, CaptureError, "a text file; calibrations are OpenCV YAML/XML/JSON, JSON, TOML or Qualisys .qca.txt")
     kind = _sniff(path, text)
     if kind == "qualisys":
         if units not in (None, "mm"):
@@ -315,13 +312,12 @@ def read_calibration(path: str | Path, units: str | None = None) -> list[CameraC
     if kind == "filestorage":
         tree = _filestorage_tree(path)
     elif kind == "json":
-        try:
-            tree = _opencv_matrix(json.loads(text))
-        except json.JSONDecodeError as exc:
-            raise CaptureError(f"{path}: not valid JSON ({exc})") from None
+        tree = _opencv_matrix(parse_json(text, path, CaptureError))
     else:
         try:
             tree = tomllib.loads(text)
+        except RecursionError:
+            raise CaptureError(f"{path}: not valid TOML (nested too deeply)") from None
         except tomllib.TOMLDecodeError as exc:
             if path.suffix.lower() == ".toml":
                 raise CaptureError(f"{path}: not valid TOML ({exc})") from None

@@ -22,6 +22,7 @@ import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
+from mocapgraph.data_tools.io.checks import check_limit, check_number, table_list, warn_unknown_keys
 from mocapgraph.data_tools.io.files import (
     ArrayFiles,
     Where,
@@ -46,6 +47,17 @@ SENSOR_FIELDS: dict[str, dict[str, tuple[int, ...]]] = {
     "baro": {"t": (), "altitude": (), "sigma": ()},
     "self_pose": {"t": (), "rotation": (3, 3), "position": (3,)},
 }
+# The physical range (a key of checks.LIMITS) of each sensor array other than times and rotations.
+_SENSOR_LIMITS = {"position": "position", "sigma": "sigma_m", "accel": "accel", "gyro": "gyro", "altitude": "altitude"}
+
+# Keys of the manifest's tables; anything else draws a warning naming the nearest of these.
+_TOP_KEYS = ("format", "version", "name", "world_frame", "cameras", "ground_truth")
+_CAMERA_KEYS = (
+    "name", "K", "image_size", "distortion", "moving", "frame_rate", "timestamps", "detectors", "extrinsics", "mount", "sensors", "video",
+)  # fmt: skip
+_DETECTOR_KEYS = ("name", "format", "file")
+_SENSOR_KEYS = ("kind", "file")
+_GROUND_TRUTH_KEYS = ("body_model", "body", "cameras", "swaps")
 
 
 class CaptureError(MocapgraphError):
@@ -200,6 +212,8 @@ def load_capture(path: str | Path, *, repair: bool = True) -> Capture:
     """
     root, doc, where = read_manifest(path, MANIFEST, FORMAT_NAME, FORMAT_VERSION, CaptureError)
     files = ArrayFiles(root, CaptureError)
+    warn_unknown_keys(doc, _TOP_KEYS, where, free_form=True)  # the rest is the user's metadata
+    _check_imported(doc.get("imported"), where("imported"))
     cams = require_key(doc, "cameras", where, list)
     if not cams:
         raise where("cameras").fail("a capture needs at least one camera")
@@ -228,6 +242,17 @@ def load_capture(path: str | Path, *, repair: bool = True) -> Capture:
     )
 
 
+def _check_imported(imported, where: Where) -> None:
+    """The importer's record (``[imported]``), where the pipelines read ``guessed_intrinsics``."""
+    if imported is None:
+        return
+    if not isinstance(imported, dict):
+        raise where.fail(f"expected a table, got {type(imported).__name__}")
+    guessed = imported.get("guessed_intrinsics", [])
+    if not isinstance(guessed, list) or not all(isinstance(g, str) for g in guessed):
+        raise where("guessed_intrinsics").fail("expected a list of camera names")
+
+
 def _increasing_part(t: np.ndarray, where: Where, notes: list[str] | None, what: str, unit: str) -> np.ndarray | None:
     """Which samples of a recorded time axis ``t (N,)`` to keep: a mask ``(N,)``, or None for all.
 
@@ -242,6 +267,7 @@ def _increasing_part(t: np.ndarray, where: Where, notes: list[str] | None, what:
         return None
     # The running maximum of all earlier samples is a kept sample (its first occurrence is).
     keep = t > np.maximum.accumulate(np.r_[-np.inf, t[:-1]])
+    check_increasing(t[keep], where)  # what is left must be a usable clock
     if keep.all():
         return None
     i = int(np.argmin(keep))  # every sample before i is kept, so t[i - 1] is the maximum it fails
@@ -275,27 +301,28 @@ def _read_camera(doc, where: Where, files: ArrayFiles, notes: list[str] | None) 
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
     name = require_key(doc, "name", where, str)
-    if not name or "/" in name or name.startswith("."):
+    if not name or "/" in name or "\\" in name or "\0" in name or name.startswith(".") or len(name.encode()) > 200:
         raise where("name").fail(f"{name!r} is not a plain file name")
     where = Where(where.file, f"cameras.{name}", CaptureError)
-    K = check_array(require_key(doc, "K", where, list), where("K"), (3, 3))
+    warn_unknown_keys(doc, _CAMERA_KEYS, where)
+    K = check_array(require_key(doc, "K", where, list), where("K"), (3, 3), limit="pixel")
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
         raise where("K").fail("needs fx > 0, fy > 0 and a last row [0, 0, 1]")
     size = require_key(doc, "image_size", where, list)
-    if len(size) != 2 or not all(isinstance(s, int) and s > 0 for s in size):
+    if len(size) != 2:
         raise where("image_size").fail(f"expected [width, height] in pixels, got {size}")
-    distortion = check_array(doc.get("distortion", [0.0] * 5), where("distortion"), (5,))
+    for i, s in enumerate(size):
+        check_number(s, where(f"image_size[{i}]"), "image_size", integer=True)
+    distortion = check_array(doc.get("distortion", [0.0] * 5), where("distortion"), (5,), limit="distortion")
     moving = require_key(doc, "moving", where, bool)
-    rate = float(require_key(doc, "frame_rate", where, (int, float)))
-    if rate <= 0:
-        raise where("frame_rate").fail(f"must be positive, got {rate}")
+    rate = float(check_number(require_key(doc, "frame_rate", where), where("frame_rate"), "frame_rate"))
     ts_file = require_key(doc, "timestamps", where, str)
     timestamps = check_array(files.npy(ts_file, where("timestamps")), where.at(ts_file, "timestamps"), (None,))
     keep = _increasing_part(timestamps, where.at(ts_file, "timestamps"), notes, f"camera {name}: timestamps", "frame")
     T = len(timestamps)
 
     detectors = {}
-    for i, det in enumerate(doc.get("detectors", [])):
+    for i, det in enumerate(table_list(doc, "detectors", where)):
         d = _read_detector(det, where(f"detectors[{i}]"), files, T)
         if d.name in detectors:
             raise where("detectors").fail(f"detector name {d.name!r} appears twice")
@@ -306,7 +333,7 @@ def _read_camera(doc, where: Where, files: ArrayFiles, notes: list[str] | None) 
         rel = require_key(doc, "extrinsics", where, str)
         arrays = files.npz(rel, where("extrinsics"), ("R", "t"))
         R = check_array(arrays["R"], where.at(rel, "R"), (None, 3, 3))
-        t = check_array(arrays["t"], where.at(rel, "t"), (R.shape[0], 3))
+        t = check_array(arrays["t"], where.at(rel, "t"), (R.shape[0], 3), limit="position")
         if R.shape[0] not in (1, T):
             raise where.at(rel, "R").fail(f"needs 1 (static) or {T} (one per frame) poses, got {R.shape[0]}")
         check_rotations(R, where.at(rel, "R"))
@@ -316,9 +343,12 @@ def _read_camera(doc, where: Where, files: ArrayFiles, notes: list[str] | None) 
     if "mount" in doc:
         mount = check_array(doc["mount"], where("mount"), (4, 4))
         check_rotations(mount[:3, :3], where("mount"))
+        check_limit(mount[:3, 3], where("mount"), "position")
+        if not np.array_equal(mount[3], [0.0, 0.0, 0.0, 1.0]):
+            raise where("mount").fail(f"the last row must be [0, 0, 0, 1], got {mount[3].tolist()}")
 
     sensors = {}
-    for i, sensor in enumerate(doc.get("sensors", [])):
+    for i, sensor in enumerate(table_list(doc, "sensors", where)):
         kind, arrays = _read_sensor(sensor, where(f"sensors[{i}]"), files, notes, name)
         if kind in sensors:
             raise where("sensors").fail(f"sensor kind {kind!r} appears twice")
@@ -326,7 +356,7 @@ def _read_camera(doc, where: Where, files: ArrayFiles, notes: list[str] | None) 
 
     video = doc.get("video")
     if video is not None:
-        files.resolve(str(video), where("video"))
+        files.resolve(require_key(doc, "video", where, str), where("video"))
     camera = Camera(
         name=name,
         K=K,
@@ -372,6 +402,7 @@ def _keep_frames(camera: Camera, keep: np.ndarray) -> Camera:
 def _read_detector(doc, where: Where, files: ArrayFiles, frames: int) -> Detector:
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
+    warn_unknown_keys(doc, _DETECTOR_KEYS, where)
     name = require_key(doc, "name", where, str)
     fmt_name = require_key(doc, "format", where, str)
     try:
@@ -380,13 +411,13 @@ def _read_detector(doc, where: Where, files: ArrayFiles, frames: int) -> Detecto
         raise where("format").fail(str(exc)) from None
     rel = require_key(doc, "file", where, str)
     arrays = files.npz(rel, where("file"), ("keypoints",))
-    kp = check_array(arrays["keypoints"], where.at(rel, "keypoints"), (frames, fmt.num_points, 3), allow_nan=True)
+    kp = check_array(arrays["keypoints"], where.at(rel, "keypoints"), (frames, fmt.num_points, 3), allow_nan=True, limit="pixel")
     conf = kp[..., 2][np.isfinite(kp[..., 2])]
     if np.any((conf < 0) | (conf > 1)):
         raise where.at(rel, "keypoints").fail("confidences must lie in [0, 1] (missing points are NaN, never 0)")
     boxes = None
     if "boxes" in arrays:
-        boxes = check_array(arrays["boxes"], where.at(rel, "boxes"), (frames, 5), allow_nan=True)
+        boxes = check_array(arrays["boxes"], where.at(rel, "boxes"), (frames, 5), allow_nan=True, limit="pixel")
     return Detector(name=name, format=fmt.name, keypoints=kp, boxes=boxes)
 
 
@@ -396,6 +427,7 @@ def _read_sensor(
     """A sensor log of ``camera``: its kind and arrays ``(N, …)``, repaired like the timestamps."""
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
+    warn_unknown_keys(doc, _SENSOR_KEYS, where)
     kind = require_key(doc, "kind", where, str)
     if kind not in SENSOR_FIELDS:
         raise where("kind").fail(f"unknown sensor kind {kind!r}; known: {', '.join(SENSOR_FIELDS)}")
@@ -404,7 +436,7 @@ def _read_sensor(
     raw = files.npz(rel, where("file"), tuple(spec))
     t = check_array(raw["t"], where.at(rel, "t"), (None,))
     keep = _increasing_part(t, where.at(rel, "t"), notes, f"camera {camera}: {kind} sample times", "sample")
-    arrays = {k: check_array(raw[k], where.at(rel, k), (len(t), *trailing)) for k, trailing in spec.items()}
+    arrays = {k: check_array(raw[k], where.at(rel, k), (len(t), *trailing), limit=_SENSOR_LIMITS.get(k)) for k, trailing in spec.items()}
     if kind == "self_pose":
         check_rotations(arrays["rotation"], where.at(rel, "rotation"))
     if keep is not None:
@@ -421,6 +453,7 @@ def _read_ground_truth(
     """
     if not isinstance(doc, dict):
         raise where.fail("expected a table")
+    warn_unknown_keys(doc, _GROUND_TRUTH_KEYS, where)
     body_model = require_key(doc, "body_model", where, str)
     rel = require_key(doc, "body", where, str)
     body = files.npz(rel, where("body"), ("timestamps", "R", "t", "pose", "shape", "joints"))
@@ -431,10 +464,10 @@ def _read_ground_truth(
     check_rotations(R, where.at(rel, "R"))
     root = np.tile(np.eye(4), (T, 1, 1))
     root[:, :3, :3] = R
-    root[:, :3, 3] = check_array(body["t"], where.at(rel, "t"), (T, 3))
-    pose = check_array(body["pose"], where.at(rel, "pose"), (T, 21, 3))
-    shape = check_array(body["shape"], where.at(rel, "shape"), (None,))
-    joints = check_array(body["joints"], where.at(rel, "joints"), (T, 22, 3))
+    root[:, :3, 3] = check_array(body["t"], where.at(rel, "t"), (T, 3), limit="position")
+    pose = check_array(body["pose"], where.at(rel, "pose"), (T, 21, 3), limit="body_parameter")
+    shape = check_array(body["shape"], where.at(rel, "shape"), (None,), limit="body_parameter")
+    joints = check_array(body["joints"], where.at(rel, "joints"), (T, 22, 3), limit="position")
     cams = {}
     if "cameras" in doc:
         crel = require_key(doc, "cameras", where, str)
@@ -445,13 +478,16 @@ def _read_ground_truth(
             keep = kept.get(cam.name)
             frames = cam.num_frames if keep is None else len(keep)  # the count in the files
             Rc = check_array(arrays[f"{cam.name}.R"], where.at(crel, f"{cam.name}.R"), (frames, 3, 3))
-            tc = check_array(arrays.get(f"{cam.name}.t"), where.at(crel, f"{cam.name}.t"), (frames, 3))
+            if f"{cam.name}.t" not in arrays:
+                raise where.at(crel, f"{cam.name}.t").fail(f"missing (given with {cam.name}.R)")
+            tc = check_array(arrays[f"{cam.name}.t"], where.at(crel, f"{cam.name}.t"), (frames, 3), limit="position")
             check_rotations(Rc, where.at(crel, f"{cam.name}.R"))
             poses = world_T_camera_from_Rt(Rc, tc)
             cams[cam.name] = poses if keep is None else poses[keep]
-        unknown = {k.split(".")[0] for k in arrays} - {c.name for c in cameras}
+        # Camera names may hold dots ("cam.1"): a key is known when it is <camera>.R or <camera>.t.
+        unknown = set(arrays) - {f"{c.name}.{k}" for c in cameras for k in ("R", "t")}
         if unknown:
-            raise where.at(crel).fail(f"poses for unknown cameras {sorted(unknown)}")
+            raise where.at(crel).fail(f"arrays for unknown cameras (or fields): {sorted(unknown)}")
     swaps = _read_swaps(doc, where, files, cameras, kept) if "swaps" in doc else {}
     return GroundTruth(body_model, ts, root, pose, shape, joints, cams, swaps)
 
@@ -506,6 +542,7 @@ def write_capture(capture: Capture, path: str | Path, overwrite: bool = False, e
         write,
         lambda tmp: load_capture(tmp, repair=False),
         CaptureError,
+        replaces=MANIFEST,
     )
 
 

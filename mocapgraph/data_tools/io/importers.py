@@ -306,4 +306,4 @@ def assemble_capture(
                 entry["video"] = video_of[entry["name"]]
         manifest.write_text(header + tomli_w.dumps(doc), encoding="utf-8")
 
-    return write_directory_atomically(out, overwrite, write, load_capture, CaptureError)
+    return write_directory_atomically(out, overwrite, write, load_capture, CaptureError, replaces=MANIFEST)

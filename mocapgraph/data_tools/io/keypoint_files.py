@@ -10,15 +10,14 @@ The format is named, or told from the number of points per person. Every problem
 
 from __future__ import annotations
 
-import json
 import re
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import UNSUPPORTED_POINT_COUNTS, KeypointFormat, format_for_points, formats_with_points, get_format
 from mocapgraph.data_tools.io.capture import CaptureError
+from mocapgraph.data_tools.io.checks import load_npy, load_npz, parse_json, read_text
 from mocapgraph.errors import MocapgraphError
 
 OPENPOSE_SUFFIX = "_keypoints.json"
@@ -126,10 +125,7 @@ def read_json_keypoints(
     told_by = None  # with "auto": the file whose first person set the format
     frames: list[list[tuple[np.ndarray, str]]] = []
     for path in files:
-        try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise CaptureError(f"{path}: not valid JSON ({exc})") from None
+        doc = parse_json(read_text(path, CaptureError, "a UTF-8 JSON file"), path, CaptureError)
         people = doc.get("people") if isinstance(doc, dict) else None
         if not isinstance(people, list):
             raise CaptureError(f"{path}: people: missing or not a list (is this OpenPose-style JSON output?)")
@@ -188,21 +184,18 @@ def read_keypoint_array(path: str | Path, fmt: str | KeypointFormat = AUTO, key:
     if key is not None and suffix != ".npz":
         raise CaptureError(f"{path}: an array name ({key!r}) only applies to .npz files")
     source = str(path)
-    try:
-        if suffix == ".npy":
-            arr = np.load(path, allow_pickle=False)
-        else:
-            with np.load(path, allow_pickle=False) as npz:
-                names = list(npz.files)
-                if key is None and len(names) != 1:
-                    raise CaptureError(f"{path}: holds {len(names)} arrays ({', '.join(names) or 'none'}); name one as FILE.npz:KEY")
-                key = key if key is not None else names[0]
-                if key not in names:
-                    raise CaptureError(f"{path}: no array {key!r} (it holds {', '.join(names)})")
-                arr = npz[key]
-                source = f"{path}[{key}]"
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise CaptureError(f"{path}: not a readable {suffix} file ({exc})") from None
+    if suffix == ".npy":
+        arr = load_npy(path, source, CaptureError)
+    else:
+        arrays = load_npz(path, source, CaptureError)
+        names = list(arrays)
+        if key is None and len(names) != 1:
+            raise CaptureError(f"{path}: holds {len(names)} arrays ({', '.join(names) or 'none'}); name one as FILE.npz:KEY")
+        key = key if key is not None else names[0]
+        if key not in names:
+            raise CaptureError(f"{path}: no array {key!r} (it holds {', '.join(names)})")
+        arr = arrays[key]
+        source = f"{path}[{key}]"
     if arr.ndim != 3 or arr.shape[-1] != 3:
         raise CaptureError(f"{source}: expected shape (T, K, 3): frames, points, x y confidence; got {arr.shape}")
     if not np.issubdtype(arr.dtype, np.number):

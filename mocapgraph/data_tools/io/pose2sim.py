@@ -16,7 +16,6 @@ camera ``cam01``, as are ``videos/cam01.mp4`` and the calibration's camera named
 from __future__ import annotations
 
 import logging
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +23,7 @@ import numpy as np
 
 from mocapgraph.data_tools.io.calibration import CameraCalibration, read_calibration
 from mocapgraph.data_tools.io.capture import CaptureError
+from mocapgraph.data_tools.io.checks import parse_toml, read_text
 from mocapgraph.data_tools.io.keypoint_files import AUTO, natural_key, read_json_keypoints
 
 log = logging.getLogger(__name__)
@@ -70,11 +70,7 @@ def _config(root: Path) -> dict:
     path = root / "Config.toml"
     if not path.is_file():
         return {}
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise CaptureError(f"{path}: not valid TOML ({exc})") from None
-    return doc
+    return parse_toml(read_text(path, CaptureError, "a UTF-8 TOML file"), path, CaptureError)
 
 
 def _config_format(root: Path, config: dict) -> tuple[str, str]:

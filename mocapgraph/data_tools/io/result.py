@@ -21,6 +21,7 @@ from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.data_tools.io.capture import Rt_from_world_T_camera, world_T_camera_from_Rt
+from mocapgraph.data_tools.io.checks import parse_json, read_text, warn_unknown_keys
 from mocapgraph.data_tools.io.files import (
     ArrayFiles,
     Where,
@@ -37,6 +38,11 @@ from mocapgraph.errors import MocapgraphError
 FORMAT_NAME = "mocapgraph-result"
 FORMAT_VERSION = 1
 MANIFEST = "result.toml"
+_KEYS = (
+    "format", "version", "pipeline", "pipeline_version", "capture", "world_frame", "body", "body_model", "keypoint_format",
+    "cameras", "covariances", "flags", "log", "parameters",
+)  # fmt: skip
+"""Keys of ``result.toml``; anything else draws a warning naming the nearest of these."""
 PER_FRAME_CAMERA = "camera_per_frame:"
 """Prefix of the world frame of a result relative to a camera at each body timestamp (AirPose's)."""
 
@@ -123,6 +129,7 @@ def load_result(path: str | Path) -> Result:
     """Read and validate a result directory (or its ``result.toml``)."""
     root, doc, where = read_manifest(path, MANIFEST, FORMAT_NAME, FORMAT_VERSION, ResultError)
     files = ArrayFiles(root, ResultError)
+    warn_unknown_keys(doc, _KEYS, where)
 
     body_rel = require_key(doc, "body", where, str)
     body = files.npz(body_rel, where("body"), ("timestamps", "joints"))
@@ -135,9 +142,9 @@ def load_result(path: str | Path) -> Result:
         capture=require_key(doc, "capture", where, str),
         world_frame=require_key(doc, "world_frame", where, str),
         timestamps=ts,
-        joints=check_array(body["joints"], at("joints"), (T, NUM_JOINTS, 3), allow_nan=True),
-        parameters=dict(doc.get("parameters", {})),
-        pipeline_version=str(doc.get("pipeline_version", "unknown")),
+        joints=check_array(body["joints"], at("joints"), (T, NUM_JOINTS, 3), allow_nan=True, limit="position"),
+        parameters=require_key(doc, "parameters", where, dict) if "parameters" in doc else {},
+        pipeline_version=require_key(doc, "pipeline_version", where, str) if "pipeline_version" in doc else "unknown",
         path=root,
     )
     if "pose" in body:
@@ -147,9 +154,9 @@ def load_result(path: str | Path) -> Result:
         check_rotations(R, at("R"))
         result.root = np.tile(np.eye(4), (T, 1, 1))
         result.root[:, :3, :3] = R
-        result.root[:, :3, 3] = check_array(body["t"], at("t"), (T, 3))
-        result.pose = check_array(body["pose"], at("pose"), (T, NUM_JOINTS - 1, 3))
-        result.shape = check_array(body["shape"], at("shape"), (None,))
+        result.root[:, :3, 3] = check_array(body["t"], at("t"), (T, 3), limit="position")
+        result.pose = check_array(body["pose"], at("pose"), (T, NUM_JOINTS - 1, 3), limit="body_parameter")
+        result.shape = check_array(body["shape"], at("shape"), (None,), limit="body_parameter")
     if "keypoints" in body:
         fmt_name = require_key(doc, "keypoint_format", where, str)
         try:
@@ -157,7 +164,7 @@ def load_result(path: str | Path) -> Result:
         except MocapgraphError as exc:
             raise where("keypoint_format").fail(str(exc)) from None
         result.keypoint_format = fmt.name
-        result.keypoints = check_array(body["keypoints"], at("keypoints"), (T, fmt.num_points, 3), allow_nan=True)
+        result.keypoints = check_array(body["keypoints"], at("keypoints"), (T, fmt.num_points, 3), allow_nan=True, limit="position")
 
     if "cameras" in doc:
         rel = require_key(doc, "cameras", where, str)
@@ -169,7 +176,7 @@ def load_result(path: str | Path) -> Result:
             check_increasing(cts, at(f"{name}.timestamps"))
             R = check_array(arrays[f"{name}.R"], at(f"{name}.R"), (len(cts), 3, 3))
             check_rotations(R, at(f"{name}.R"))
-            t = check_array(arrays[f"{name}.t"], at(f"{name}.t"), (len(cts), 3))
+            t = check_array(arrays[f"{name}.t"], at(f"{name}.t"), (len(cts), 3), limit="position")
             swaps = None
             if f"{name}.swaps" in arrays:
                 swaps = check_array(arrays[f"{name}.swaps"], at(f"{name}.swaps"), (len(cts),)).astype(np.int8)
@@ -188,10 +195,10 @@ def load_result(path: str | Path) -> Result:
             result.flags[name] = arr
     if "log" in doc:
         rel = require_key(doc, "log", where, str)
-        try:
-            result.log = json.loads(files.resolve(rel, where("log")).read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise ResultError(f"{rel}: not valid JSON ({exc})") from None
+        path = files.resolve(rel, where("log"))
+        result.log = parse_json(read_text(path, ResultError, "a UTF-8 JSON file"), path, ResultError)
+        if not isinstance(result.log, list) or not all(isinstance(entry, dict) for entry in result.log):
+            raise where.at(rel).fail("expected a list of objects (one per solver iteration)")
     return result
 
 
@@ -208,7 +215,7 @@ def _require_arrays(arrays: dict, keys: tuple[str, ...], at: Where, why: str) ->
 def write_result(result: Result, path: str | Path, overwrite: bool = False) -> Path:
     """Write ``result`` at ``path`` atomically (validated by reading it back first)."""
     return write_directory_atomically(
-        Path(path), overwrite, lambda tmp: _write_into(result, tmp), load_result, ResultError
+        Path(path), overwrite, lambda tmp: _write_into(result, tmp), load_result, ResultError, replaces=MANIFEST
     )
 
 
