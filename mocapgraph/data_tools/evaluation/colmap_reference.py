@@ -457,7 +457,9 @@ def write_reference(reference: ColmapReference, capture_path: str | Path, overwr
         }  # fmt: skip
         write_manifest(tmp / MANIFEST, "reference", "docs/capture-format.md", doc)
 
-    return write_directory_atomically(path, overwrite, write, lambda tmp: load_reference(tmp.parent.parent, reference.name, directory=tmp), ReferenceError)
+    return write_directory_atomically(
+        path, overwrite, write, lambda tmp: load_reference(tmp.parent.parent, reference.name, directory=tmp), ReferenceError, replaces=MANIFEST
+    )
 
 
 def load_reference(capture_path: str | Path, name: str, *, directory: Path | None = None) -> ColmapReference:
