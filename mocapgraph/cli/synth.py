@@ -13,7 +13,7 @@ def cmd_synth(args) -> None:
     refuse_existing(args.out, args.overwrite)
     capture = synthesize(
         args.preset, seed=args.seed, duration_s=args.duration_s, motion=args.motion, detectors=args.detectors,
-        detector_faults=args.detector_faults,
+        detector_faults=args.detector_faults, imu=args.imu,
     )  # fmt: skip
     path = write_capture(capture, args.out, overwrite=args.overwrite)
     frames = sum(cam.num_frames for cam in capture.cameras)
@@ -40,4 +40,5 @@ def add_parsers(subparsers) -> None:
          "detector_faults": ("sustained left/right swaps, far-side guesses, keypoint offsets, size bias "
                              "(docs/detector_faults.md)", {"choices": FAULT_LEVELS})},
     )  # fmt: skip
+    synth.add_argument("--no-imu", dest="imu", action="store_false", help="no IMU logs on the carried phones of phones (docs/phone-imu.md)")
     synth.set_defaults(func=cmd_synth)
