@@ -1,0 +1,122 @@
+"""A moving camera's own IMU (a phone's gyroscope and accelerometer) as a prior on its motion.
+
+Between two consecutive frames ``j``, ``j'`` of a moving camera that its IMU log covers without
+a gap, GTSAM's preintegration of the log (read as hold intervals,
+:func:`~mocapgraph.graphs.navigation.hold_intervals`) gives a ``CombinedImuFactor`` on the
+camera's poses ``world_T_camera`` at both frames (the camera keys of the state model), its
+velocities there (:func:`~mocapgraph.factors.keys.camera_velocity_key`, world frame, m/s) and
+its IMU biases (:func:`~mocapgraph.factors.keys.camera_bias_key`, with their random walk between
+the two). The camera is the preintegration's body frame: the capture's mount (``imu_T_camera``)
+is GTSAM's ``body_P_sensor`` inverted, so the IMU's lever arm and axes are undone inside GTSAM.
+Gravity is :data:`~mocapgraph.factors.navigation.GRAVITY_M_S2` along the world's −Z, as in
+every world frame here (SmartMocap's: Z up from the ground plane).
+
+What the factor holds: the rotation between the frames from the gyroscope, always; the change
+of velocity and the displacement from the accelerometer only relative to gravity and to the
+velocities, which nothing but the camera's poses (the body it sees, the other cameras through
+the body) pins: a camera seen by nobody else keeps its rotations but drifts in translation.
+``docs/phone-imu.md`` has the measured effect. The log's clock is taken as the camera's (the
+simulator's phones are up to 10 ms apart); a step with a gap in the log gets no factor, and the
+bias starts afresh, under its prior, after a gap.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from mocapgraph.errors import MocapgraphError, as_checked_array
+from mocapgraph.factors.navigation import FusionNoise, preintegration_params
+from mocapgraph.graphs.navigation import hold_intervals
+
+PHONE_IMU_NOISE = FusionNoise(
+    accel_noise_m_s2_sqrt_hz=3.6e-3,
+    gyro_noise_rad_s_sqrt_hz=2.4e-4,
+    accel_bias_walk_m_s2_sqrt_s=3e-3,
+    gyro_bias_walk_rad_s_sqrt_s=2e-5,
+    accel_bias_prior_m_s2=0.1,
+    gyro_bias_prior_rad_s=0.01,
+)
+"""A phone IMU's noise in the graph: twice the white-noise densities of its datasheets (the
+BMI160's, as the simulator's :class:`~mocapgraph.data_tools.sim.sensors.PhoneImu`), for what
+the hold intervals and the unmodelled clock offset add; bias walks as simulated; bias priors
+twice the simulated spread of the biases left after the phone's calibration."""
+
+GAP_PERIODS = 3.0
+"""Consecutive samples further apart than this many median sample periods are a gap in the log."""
+
+
+@dataclass(frozen=True)
+class CameraImu:
+    """One camera's IMU log and where the camera sits on the IMU.
+
+    Attributes:
+        t: ``(N,)`` seconds on the camera's clock, strictly increasing.
+        accel: ``(N, 3)`` specific force in the IMU frame, m/s² (at rest: ``(0, 0, +g)`` rotated into it).
+        gyro: ``(N, 3)`` angular rate in the IMU frame, rad/s.
+        imu_T_camera: ``(4, 4)`` the camera in the IMU's frame (the capture's ``mount``).
+    """
+
+    t: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray
+    imu_T_camera: np.ndarray
+
+    @classmethod
+    def from_log(cls, log: Mapping[str, np.ndarray], imu_T_camera, name: str) -> CameraImu:
+        """Checked from a capture's ``imu`` log (``t``, ``accel``, ``gyro``) and mount; ``name`` for messages."""
+        t = as_checked_array(log["t"], f"camera {name!r}: imu t", (None,))
+        if len(t) < 2 or np.any(np.diff(t) <= 0):
+            raise MocapgraphError(f"camera {name!r}: imu t: needs at least 2 strictly increasing sample times")
+        accel = as_checked_array(log["accel"], f"camera {name!r}: imu accel", (len(t), 3))
+        gyro = as_checked_array(log["gyro"], f"camera {name!r}: imu gyro", (len(t), 3))
+        mount = as_checked_array(imu_T_camera, f"camera {name!r}: mount (imu_T_camera)", (4, 4))
+        return cls(t, accel, gyro, mount)
+
+    def segments(self) -> list[tuple[float, float]]:
+        """``[(start, end)]`` seconds of the log's stretches without a gap (:data:`GAP_PERIODS`)."""
+        dt = np.diff(self.t)
+        breaks = np.flatnonzero(dt > GAP_PERIODS * np.median(dt))
+        starts = np.r_[0, breaks + 1]
+        ends = np.r_[breaks, len(self.t) - 1]
+        return [(float(self.t[a]), float(self.t[b])) for a, b in zip(starts, ends) if b > a]
+
+    def covers(self, t0: float, t1: float) -> bool:
+        """Whether one stretch of the log without a gap spans ``[t0, t1]``."""
+        return any(a <= t0 and t1 <= b for a, b in self.segments())
+
+    def params(self, noise: FusionNoise = PHONE_IMU_NOISE) -> gtsam.PreintegrationCombinedParams:
+        """GTSAM's preintegration parameters with the camera as the body (gravity along −Z)."""
+        params = preintegration_params(noise)
+        params.setBodyPSensor(gtsam.Pose3(np.linalg.inv(self.imu_T_camera)))
+        return params
+
+    def preintegrate(self, t0: float, t1: float, params: gtsam.PreintegrationCombinedParams) -> gtsam.PreintegratedCombinedMeasurements:
+        """The log from ``t0`` to ``t1`` (inside one stretch) preintegrated at zero bias; each hold
+        interval cut to the part of it inside ``[t0, t1]``."""
+        accel, gyro, _ = hold_intervals({"t": self.t, "accel": self.accel, "gyro": self.gyro})
+        pim = gtsam.PreintegratedCombinedMeasurements(params, gtsam.imuBias.ConstantBias())
+        k = int(np.clip(np.searchsorted(self.t, t0, side="right") - 1, 0, len(accel) - 1))
+        start = t0
+        while start < t1 - 1e-12 and k < len(accel):
+            end = min(float(self.t[k + 1]), t1)
+            if end > start:
+                pim.integrateMeasurement(accel[k], gyro[k], end - start)
+            start, k = end, k + 1
+        return pim
+
+
+def imu_factor(pose_keys, velocity_keys, bias_keys, pim: gtsam.PreintegratedCombinedMeasurements) -> gtsam.CombinedImuFactor:
+    """GTSAM's ``CombinedImuFactor`` between a camera's two frames: ``(pose, velocity, bias)`` at each."""
+    (p0, p1), (v0, v1), (b0, b1) = pose_keys, velocity_keys, bias_keys
+    return gtsam.CombinedImuFactor(p0, v0, p1, v1, b0, b1, pim)
+
+
+def bias_prior(key: int, noise: FusionNoise = PHONE_IMU_NOISE) -> gtsam.PriorFactorConstantBias:
+    """The bias at the start of a stretch of the log: zero, within the noise's bias priors."""
+    sigma = np.r_[np.full(3, noise.accel_bias_prior_m_s2), np.full(3, noise.gyro_bias_prior_rad_s)]
+    return gtsam.PriorFactorConstantBias(key, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigma))
+
