@@ -14,6 +14,7 @@ cameras' constant-velocity model (``camera_sigma_m_s2`` None); the medians over 
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import replace
 
@@ -23,6 +24,8 @@ from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
+
+log = logging.getLogger(__name__)
 
 BENCH_MOTION = "cmu:cmu_15_01_s1.npz"
 CONFIGURATIONS = {
@@ -89,6 +92,7 @@ def bench_phones(duration_s: float = 4.0, seed: int = 0, workers: int = 2, takes
             row = {key: round(metrics[key], 4) for key in PHONES_REPORTED if key in metrics}
             row["seconds_per_chunk"] = result.parameters["seconds_per_chunk"]
             rows.setdefault(name, {})[f"{take.removesuffix('.npz')}_seed{seed + k}"] = row
+            log.info("bench phones: %s seed %d %s: %s", take, seed + k, name, row)  # a long run's rows survive an interruption
     medians = {
         name: {key: round(float(np.median([r[key] for r in per_take.values() if key in r])), 4) for key in PHONES_REPORTED + ("seconds_per_chunk",)}
         for name, per_take in rows.items()

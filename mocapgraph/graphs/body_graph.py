@@ -3,7 +3,8 @@
 :class:`BodyGraph` adds, per body state, the reprojection of its observations (one factor per
 keypoint format and interpolation fraction, all its cameras at once so that forward kinematics
 is shared) and the pose priors; between states, the temporal smoothness of root, joint rotations
-and (optionally) 3D joints; per moving camera, the smoothness of its consecutive frames; and on
+and (optionally) 3D joints; per moving camera, the smoothness of its consecutive frames and,
+with an IMU log, GTSAM's preintegrated IMU factors between them (:mod:`~mocapgraph.graphs.camera_imu`); and on
 request the shape prior, the ground terms, the pose VAE and the motion prior. It inserts initial
 values from an :class:`~mocapgraph.graphs.state_model.Estimate`, reads one back, orders the
 elimination along time, and computes the covariances a result reports.

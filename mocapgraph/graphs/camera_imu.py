@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 
 import gtsam
 import numpy as np
@@ -76,6 +77,12 @@ class CameraImu:
         mount = as_checked_array(imu_T_camera, f"camera {name!r}: mount (imu_T_camera)", (4, 4))
         return cls(t, accel, gyro, mount)
 
+    @cached_property
+    def held(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(N-1, 3)`` specific force and rate held over each interval between samples."""
+        accel, gyro, _ = hold_intervals({"t": self.t, "accel": self.accel, "gyro": self.gyro})
+        return accel, gyro
+
     def segments(self) -> list[tuple[float, float]]:
         """``[(start, end)]`` seconds of the log's stretches without a gap (:data:`GAP_PERIODS`)."""
         dt = np.diff(self.t)
@@ -97,7 +104,7 @@ class CameraImu:
     def preintegrate(self, t0: float, t1: float, params: gtsam.PreintegrationCombinedParams) -> gtsam.PreintegratedCombinedMeasurements:
         """The log from ``t0`` to ``t1`` (inside one stretch) preintegrated at zero bias; each hold
         interval cut to the part of it inside ``[t0, t1]``."""
-        accel, gyro, _ = hold_intervals({"t": self.t, "accel": self.accel, "gyro": self.gyro})
+        accel, gyro = self.held
         pim = gtsam.PreintegratedCombinedMeasurements(params, gtsam.imuBias.ConstantBias())
         k = int(np.clip(np.searchsorted(self.t, t0, side="right") - 1, 0, len(accel) - 1))
         start = t0
