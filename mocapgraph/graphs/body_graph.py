@@ -41,6 +41,7 @@ from mocapgraph.factors.keys import (
     root_key,
     shape_key,
 )
+from mocapgraph.factors.navigation import FusionNoise
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import (
@@ -51,7 +52,7 @@ from mocapgraph.factors.smoothness import (
     pose_velocity_factor,
     root_smoothness_factor,
 )
-from mocapgraph.graphs.camera_imu import CameraImu, bias_prior, imu_factor
+from mocapgraph.graphs.camera_imu import PHONE_IMU_NOISE, CameraImu, bias_prior, imu_factor
 from mocapgraph.graphs.solver import annealed_stages
 from mocapgraph.graphs.state_model import Estimate, Observation, StateModel
 from mocapgraph.graphs.uncertainty import joint_covariances
@@ -124,6 +125,8 @@ class GraphOptions:
     offsets: str = "fixed"
     offset_sigma_m: float = 0.015
     offset_parts: tuple[str, ...] = ("shoulder",)
+    # Moving cameras' IMU logs, when the graph is given any (mocapgraph.graphs.camera_imu).
+    imu_noise: FusionNoise = PHONE_IMU_NOISE
 
     def check(self) -> None:
         for name, value, choices in (
@@ -454,11 +457,11 @@ class BodyGraph:
         """Every IMU step of every camera with a log: its ``CombinedImuFactor``, and the bias's
         prior where a run of steps starts (the first frame, or after a gap)."""
         for c, log in self.imu.items():
-            params, times = log.params(), self.model.cameras[c].timestamps
+            params, times = log.params(self.options.imu_noise), self.model.cameras[c].timestamps
             previous = None
             for a, b in self.imu_steps[c]:
                 if a != previous:
-                    graph.add(bias_prior(camera_bias_key(c, a)))
+                    graph.add(bias_prior(camera_bias_key(c, a), self.options.imu_noise))
                 keys = (self.model.camera_var(c, a), self.model.camera_var(c, b))
                 velocities, biases = (camera_velocity_key(c, a), camera_velocity_key(c, b)), (camera_bias_key(c, a), camera_bias_key(c, b))
                 graph.add(imu_factor(keys, velocities, biases, log.preintegrate(float(times[a]), float(times[b]), params)))

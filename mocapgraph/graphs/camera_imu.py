@@ -29,6 +29,7 @@ from functools import cached_property
 import gtsam
 import numpy as np
 
+from mocapgraph.body.rotations import nearest_rotation
 from mocapgraph.errors import MocapgraphError, as_checked_array
 from mocapgraph.factors.navigation import FusionNoise, preintegration_params
 from mocapgraph.graphs.navigation import hold_intervals
@@ -45,6 +46,19 @@ PHONE_IMU_NOISE = FusionNoise(
 BMI160's, as the simulator's :class:`~mocapgraph.data_tools.sim.sensors.PhoneImu`), for what
 the hold intervals and the unmodelled clock offset add; bias walks as simulated; bias priors
 twice the simulated spread of the biases left after the phone's calibration."""
+
+PHONE_GYRO_NOISE = FusionNoise(
+    accel_noise_m_s2_sqrt_hz=1.0,
+    gyro_noise_rad_s_sqrt_hz=2.4e-4,
+    accel_bias_walk_m_s2_sqrt_s=0.05,
+    gyro_bias_walk_rad_s_sqrt_s=2e-5,
+    accel_bias_prior_m_s2=0.3,
+    gyro_bias_prior_rad_s=0.01,
+)
+"""The gyroscope as :data:`PHONE_IMU_NOISE`, the accelerometer down-weighted to a motion model
+(a velocity change of 0.18 m/s per 1/30 s step at 1σ, about the constant-velocity model's 4 m/s²):
+for a world whose gravity direction and scale are only as good as the ground and the body's size
+(on a hard 4 s take the datasheet accelerometer dragged the whole scene metres away, measured)."""
 
 GAP_PERIODS = 3.0
 """Consecutive samples further apart than this many median sample periods are a gap in the log."""
@@ -127,3 +141,39 @@ def bias_prior(key: int, noise: FusionNoise = PHONE_IMU_NOISE) -> gtsam.PriorFac
     sigma = np.r_[np.full(3, noise.accel_bias_prior_m_s2), np.full(3, noise.gyro_bias_prior_rad_s)]
     return gtsam.PriorFactorConstantBias(key, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigma))
 
+
+
+def covered_runs(imu: CameraImu, frames: np.ndarray, times: np.ndarray) -> list[np.ndarray]:
+    """Runs of consecutive ``frames`` (indices into ``times``, increasing) whose steps the log
+    covers, each at least two frames long."""
+    runs, run = [], [int(frames[0])] if len(frames) else []
+    for a, b in zip(frames[:-1], frames[1:]):
+        if imu.covers(float(times[a]), float(times[b])):
+            run.append(int(b))
+            continue
+        if len(run) > 1:
+            runs.append(np.array(run))
+        run = [int(b)]
+    if len(run) > 1:
+        runs.append(np.array(run))
+    return runs
+
+
+def gyro_aligned_rotations(imu: CameraImu, times: np.ndarray, rotations: np.ndarray, noise: FusionNoise = PHONE_IMU_NOISE) -> np.ndarray:
+    """``(M, 3, 3)`` world_R_camera at ``times (M,)`` (one covered run of frames): the
+    gyroscope's track at zero bias, turned as a whole onto ``rotations (M, 3, 3)`` (e.g. the
+    views' per-frame ones, noisy and now and then flipped) by the chordal mean of their offsets,
+    twice dropping those more than three median angles (at least 0.1 rad) away."""
+    params = imu.params(noise)
+    track = [np.eye(3)]
+    for t0, t1 in zip(times[:-1], times[1:]):
+        track.append(track[-1] @ imu.preintegrate(float(t0), float(t1), params).deltaRij().matrix())
+    track = np.stack(track)
+    offsets = rotations @ np.swapaxes(track, 1, 2)  # world_R_camera(t) ≈ offset · track(t)
+    keep = np.ones(len(offsets), dtype=bool)
+    for _ in range(2):
+        mean = nearest_rotation(offsets[keep].sum(axis=0))
+        cos = np.clip((np.einsum("nij,ij->n", offsets, mean) - 1.0) / 2.0, -1.0, 1.0)
+        angle = np.arccos(cos)
+        keep = angle <= max(3.0 * np.median(angle), 0.1)
+    return nearest_rotation(offsets[keep].sum(axis=0)) @ track

@@ -37,6 +37,7 @@ from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions, LearnedPriors, motion_windows
+from mocapgraph.graphs.camera_imu import covered_runs, gyro_aligned_rotations
 from mocapgraph.graphs.initialisation import (
     INITIALISERS,
     coco_views,
@@ -335,6 +336,12 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     notes += _degeneracy_notes(model, placed)
     imu, imu_skipped = camera_imus(capture) if options.imu else ({}, [])
     notes += imu_skipped
+    for c, readings in imu.items():
+        # the views' per-frame rotations of a moving camera are noisy and sometimes flipped: its
+        # gyroscope's track, turned onto them as a whole, starts every solve instead
+        times = model.cameras[c].timestamps
+        for run in covered_runs(readings, model.camera_frames(c), times):
+            start.cameras[c][run, :3, :3] = gyro_aligned_rotations(readings, times[run], start.cameras[c][run, :3, :3], options.graph.imu_noise)
     for note in notes:
         log.info("smartmocap: %s", note)
     n = model.num_states
