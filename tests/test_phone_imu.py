@@ -13,7 +13,7 @@ from mocapgraph.data_tools.sim.scenarios import phone_mount, scenario_cameras
 from mocapgraph.data_tools.sim.sensors import GRAVITY_WORLD, PhoneImu, VehicleTrajectory, imu_readings
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import camera_bias_key, camera_key, camera_velocity_key
-from mocapgraph.graphs.camera_imu import CameraImu, bias_prior, covered_runs, gyro_aligned_rotations, imu_factor
+from mocapgraph.graphs.camera_imu import PHONE_GYRO_NOISE, PHONE_IMU_NOISE, CameraImu, bias_prior, covered_runs, gyro_aligned_rotations, imu_factor
 
 NOISELESS = PhoneImu(
     accel_noise_m_s2_sqrt_hz=0.0, gyro_noise_rad_s_sqrt_hz=0.0, accel_bias_m_s2=0.0, gyro_bias_rad_s=0.0,
@@ -100,7 +100,8 @@ def _retracted(values: gtsam.Values, key: int, delta: np.ndarray) -> gtsam.Value
     return out
 
 
-def test_imu_factor_jacobians_match_numerical_differences(phones):
+@pytest.mark.parametrize("noise", [PHONE_GYRO_NOISE, PHONE_IMU_NOISE], ids=["gyro", "datasheet"])
+def test_imu_factor_jacobians_match_numerical_differences(phones, noise):
     """The assembled factor (built-in CombinedImuFactor with the phone's mount, a noisy log, a
     perturbed state): its linearisation equals central differences of its whitened residual."""
     cam = phones[0]
@@ -108,7 +109,7 @@ def test_imu_factor_jacobians_match_numerical_differences(phones):
     log = imu_readings(VehicleTrajectory(cam.timestamps, cam.world_T_camera @ np.linalg.inv(cam.mount)), cam.sensors["imu"]["t"], rng, PhoneImu().noise())
     imu = CameraImu.from_log(log, cam.mount, cam.name)
     t = cam.timestamps
-    pim = imu.preintegrate(t[10], t[11], imu.params())
+    pim = imu.preintegrate(t[10], t[11], imu.params(noise))
     keys = (camera_key(3, 10), camera_key(3, 11)), (camera_velocity_key(3, 10), camera_velocity_key(3, 11)), (camera_bias_key(3, 10), camera_bias_key(3, 11))
     factor = imu_factor(*keys, pim)
     values = gtsam.Values()
@@ -129,7 +130,8 @@ def test_imu_factor_jacobians_match_numerical_differences(phones):
     numeric = np.stack(columns, axis=1)
     assert np.abs(A - numeric).max() / max(1.0, np.abs(numeric).max()) < 1e-5
     prior = bias_prior(keys[2][0])
-    assert np.isclose(prior.error(values), 0.5 * np.sum((values.atConstantBias(keys[2][0]).vector() / np.r_[np.full(3, 0.1), np.full(3, 0.01)]) ** 2))
+    sigma = np.r_[np.full(3, PHONE_GYRO_NOISE.accel_bias_prior_m_s2), np.full(3, PHONE_GYRO_NOISE.gyro_bias_prior_rad_s)]
+    assert np.isclose(prior.error(values), 0.5 * np.sum((values.atConstantBias(keys[2][0]).vector() / sigma) ** 2))
 
 
 def test_a_gap_in_the_log_splits_its_steps(phones):

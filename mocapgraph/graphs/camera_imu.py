@@ -42,7 +42,7 @@ PHONE_IMU_NOISE = FusionNoise(
     accel_bias_prior_m_s2=0.1,
     gyro_bias_prior_rad_s=0.01,
 )
-"""A phone IMU's noise in the graph: twice the white-noise densities of its datasheets (the
+"""A phone IMU's noise at its datasheet's: twice the white-noise densities of its datasheets (the
 BMI160's, as the simulator's :class:`~mocapgraph.data_tools.sim.sensors.PhoneImu`), for what
 the hold intervals and the unmodelled clock offset add; bias walks as simulated; bias priors
 twice the simulated spread of the biases left after the phone's calibration."""
@@ -58,7 +58,8 @@ PHONE_GYRO_NOISE = FusionNoise(
 """The gyroscope as :data:`PHONE_IMU_NOISE`, the accelerometer down-weighted to a motion model
 (a velocity change of 0.18 m/s per 1/30 s step at 1σ, about the constant-velocity model's 4 m/s²):
 for a world whose gravity direction and scale are only as good as the ground and the body's size
-(on a hard 4 s take the datasheet accelerometer dragged the whole scene metres away, measured)."""
+(with :data:`PHONE_IMU_NOISE` two of five 3 s ``phones`` takes went metres away; the default of
+:class:`~mocapgraph.graphs.body_graph.GraphOptions`)."""
 
 GAP_PERIODS = 3.0
 """Consecutive samples further apart than this many median sample periods are a gap in the log."""
@@ -109,7 +110,7 @@ class CameraImu:
         """Whether one stretch of the log without a gap spans ``[t0, t1]``."""
         return any(a <= t0 and t1 <= b for a, b in self.segments())
 
-    def params(self, noise: FusionNoise = PHONE_IMU_NOISE) -> gtsam.PreintegrationCombinedParams:
+    def params(self, noise: FusionNoise = PHONE_GYRO_NOISE) -> gtsam.PreintegrationCombinedParams:
         """GTSAM's preintegration parameters with the camera as the body (gravity along −Z)."""
         params = preintegration_params(noise)
         params.setBodyPSensor(gtsam.Pose3(np.linalg.inv(self.imu_T_camera)))
@@ -136,7 +137,7 @@ def imu_factor(pose_keys, velocity_keys, bias_keys, pim: gtsam.PreintegratedComb
     return gtsam.CombinedImuFactor(p0, v0, p1, v1, b0, b1, pim)
 
 
-def bias_prior(key: int, noise: FusionNoise = PHONE_IMU_NOISE) -> gtsam.PriorFactorConstantBias:
+def bias_prior(key: int, noise: FusionNoise = PHONE_GYRO_NOISE) -> gtsam.PriorFactorConstantBias:
     """The bias at the start of a stretch of the log: zero, within the noise's bias priors."""
     sigma = np.r_[np.full(3, noise.accel_bias_prior_m_s2), np.full(3, noise.gyro_bias_prior_rad_s)]
     return gtsam.PriorFactorConstantBias(key, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigma))
@@ -159,7 +160,7 @@ def covered_runs(imu: CameraImu, frames: np.ndarray, times: np.ndarray) -> list[
     return runs
 
 
-def gyro_aligned_rotations(imu: CameraImu, times: np.ndarray, rotations: np.ndarray, noise: FusionNoise = PHONE_IMU_NOISE) -> np.ndarray:
+def gyro_aligned_rotations(imu: CameraImu, times: np.ndarray, rotations: np.ndarray, noise: FusionNoise = PHONE_GYRO_NOISE) -> np.ndarray:
     """``(M, 3, 3)`` world_R_camera at ``times (M,)`` (one covered run of frames): the
     gyroscope's track at zero bias, turned as a whole onto ``rotations (M, 3, 3)`` (e.g. the
     views' per-frame ones, noisy and now and then flipped) by the chordal mean of their offsets,
