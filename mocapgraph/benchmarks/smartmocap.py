@@ -8,8 +8,9 @@ camera, 2 the second, "moving" the hand-held one.
 
 ``phones``: short ``phones`` captures (two static phones, two carried ones with IMUs) of five
 takes of those held-out subjects (walks, a turning dance, a dance, an everyday motion), each with
-its own seed, solved with and without the carried phones' IMUs and with and without the moving
-cameras' constant-velocity model (``camera_sigma_m_s2`` None); the medians over the takes.
+its own seed, solved with and without the carried phones' IMUs (the default, and the
+accelerometer at its datasheet noise) and with and without the moving cameras' constant-velocity
+model (``camera_sigma_m_s2`` None); the medians over the takes.
 """
 
 from __future__ import annotations
