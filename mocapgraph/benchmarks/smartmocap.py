@@ -1,20 +1,33 @@
-"""``mocapgraph bench smartmocap``: SmartMocap on one synthetic ``rich`` capture, one run, in the
-camera configurations of the thesis' Table 4.1, with and without the motion prior.
+"""``mocapgraph bench smartmocap``: SmartMocap on synthetic captures, one run each.
 
-The subject moves as a CMU take of a subject the motion prior never trained on (subject 15,
-"walk/wander"; the prior's validation subjects are 2, 5, 8, 15, 18, 20, 27, 32 and 49), so the
-prior is measured on real motion it has not seen. Camera 1 is the first static camera, 2 the
-second, "moving" the hand-held one.
+``rich``: one capture in the camera configurations of the thesis' Table 4.1, with and without
+the motion prior. The subject moves as a CMU take of a subject the motion prior never trained on
+(subject 15, "walk/wander"; the prior's validation subjects are 2, 5, 8, 15, 18, 20, 27, 32 and
+49), so the prior is measured on real motion it has not seen. Camera 1 is the first static
+camera, 2 the second, "moving" the hand-held one.
+
+``phones``: short ``phones`` captures (two static phones, two carried ones with IMUs) of five
+takes of those held-out subjects (walks, a turning dance, a dance, an everyday motion), each with
+its own seed, solved with and without the carried phones' IMUs (the default, and the
+accelerometer at its datasheet noise) and with and without the moving cameras' constant-velocity
+model (``camera_sigma_m_s2`` None); the medians over the takes.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import replace
 
+import numpy as np
+
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.sim.synthetic import synthesize
+from mocapgraph.errors import MocapgraphError
+from mocapgraph.graphs.camera_imu import PHONE_GYRO_NOISE, PHONE_IMU_NOISE
 from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
+
+log = logging.getLogger(__name__)
 
 BENCH_MOTION = "cmu:cmu_15_01_s1.npz"
 CONFIGURATIONS = {
@@ -30,7 +43,73 @@ REPORTED = (
 GOALS = {"ra_mpjpe_m": 0.03, "mpe_m": 0.05, "static_mcpe_m": 0.10, "seconds_per_chunk": 2.0}
 
 
-def bench_smartmocap(duration_s: float = 10.0, seed: int = 0, motion: str = BENCH_MOTION, workers: int = 2) -> dict:
+PHONES_TAKES = ("cmu_15_01_s1.npz", "cmu_15_09_s1.npz", "cmu_05_07_s0.npz", "cmu_05_12_s0.npz", "cmu_02_06.npz")
+"""walk/wander twice; dance with a pirouette (turn); dance with upper-body rotation; bend over,
+scoop up, rise (everyday): held-out subjects 15, 5 and 2."""
+PHONES_VARIANTS = {
+    # name: (the carried phones' IMU noise in the graph or None, the moving cameras' constant-velocity model σ m/s²);
+    # "imu_gyro" is SmartMocap's default, "imu" the accelerometer at its datasheet noise
+    "imu": (PHONE_IMU_NOISE, "default"),
+    "imu_gyro": (PHONE_GYRO_NOISE, "default"),
+    "imu_no_motion_model": (PHONE_IMU_NOISE, None),
+    "no_imu": (None, "default"),
+    "no_imu_no_motion_model": (None, None),
+}
+PHONES_REPORTED = (
+    "static_mcpe_m", "static_mcoe_rad", "moving_mcpe_procrustes_m", "moving_mcoe_procrustes_rad", "moving_mcpe_m", "moving_mcoe_rad",
+    "mpe_m", "ra_mpjpe_m",
+)  # fmt: skip
+PHONES_GOALS = {"moving_mcpe_procrustes_m": 0.05, "moving_mcoe_procrustes_rad": 0.03, "static_mcpe_m": 0.02}
+
+
+def bench_smartmocap(
+    duration_s: float = 10.0, seed: int = 0, motion: str = BENCH_MOTION, workers: int = 2, sections: str = "rich,phones", phones_duration_s: float = 3.0
+) -> dict:
+    """The ``sections`` asked for (comma-separated ``rich``, ``phones``): :func:`bench_rich`
+    with ``duration_s``, ``seed`` and ``motion``; :func:`bench_phones` with ``phones_duration_s``
+    and seeds from ``seed``."""
+    wanted = [name.strip() for name in sections.split(",") if name.strip()]
+    unknown = [name for name in wanted if name not in ("rich", "phones")]
+    if unknown or not wanted:
+        raise MocapgraphError(f"sections {sections!r}: choose among rich, phones")
+    out: dict = {}
+    if "rich" in wanted:
+        out.update(bench_rich(duration_s, seed, motion, workers))
+    if "phones" in wanted:
+        out["phones"] = bench_phones(phones_duration_s, seed, workers)
+    return out
+
+
+def bench_phones(duration_s: float = 3.0, seed: int = 0, workers: int = 2, takes: tuple[str, ...] = PHONES_TAKES) -> dict:
+    """Per take (seed ``seed + k`` for the k-th), every :data:`PHONES_VARIANTS`; metrics after the
+    ground-plane frame's similarity alignment, the moving cameras also after their own Procrustes
+    alignment; seconds per chunk; the medians over the takes and which goals they meet (with IMU)."""
+    default = SmartmocapOptions().graph.camera_sigma_m_s2
+    rows: dict[str, dict] = {}
+    for k, take in enumerate(takes):
+        capture = synthesize("phones", seed=seed + k, duration_s=duration_s, motion=f"cmu:{take}")
+        for name, (noise, sigma) in PHONES_VARIANTS.items():
+            # without the keypoint-offset passes: five takes in five variants on a shared machine
+            options = SmartmocapOptions(imu=noise is not None, workers=workers, covariances=False, keypoint_offsets=False)
+            options.graph = replace(options.graph, camera_sigma_m_s2=default if sigma == "default" else sigma, imu_noise=noise or PHONE_IMU_NOISE)
+            result = run_smartmocap(capture, options)
+            metrics = evaluate(result, capture).metrics
+            row = {key: round(metrics[key], 4) for key in PHONES_REPORTED if key in metrics}
+            row["seconds_per_chunk"] = result.parameters["seconds_per_chunk"]
+            rows.setdefault(name, {})[f"{take.removesuffix('.npz')}_seed{seed + k}"] = row
+            log.info("bench phones: %s seed %d %s: %s", take, seed + k, name, row)  # a long run's rows survive an interruption
+    medians = {
+        name: {key: round(float(np.median([r[key] for r in per_take.values() if key in r])), 4) for key in PHONES_REPORTED + ("seconds_per_chunk",)}
+        for name, per_take in rows.items()
+    }
+    return {
+        "preset": "phones", "duration_s": duration_s, "takes": list(takes), "seeds": [seed + k for k in range(len(takes))],
+        "camera_sigma_m_s2_default": default, "goals": PHONES_GOALS, "median": medians, "per_take": rows,
+        "goals_met_with_imu": {key: bool(medians["imu_gyro"][key] <= goal) for key, goal in PHONES_GOALS.items()},
+    }  # fmt: skip
+
+
+def bench_rich(duration_s: float = 10.0, seed: int = 0, motion: str = BENCH_MOTION, workers: int = 2) -> dict:
     """Every configuration with the motion prior, and without it; metrics after the similarity
     alignment ``eval`` uses for the ground-plane frame; seconds per 25-state chunk (median)."""
     capture = synthesize("rich", seed=seed, duration_s=duration_s, motion=motion)

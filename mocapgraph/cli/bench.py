@@ -16,8 +16,11 @@ BENCHES = {
     # name: (help, function, {parameter: (flag help, extra add_argument keywords)})
     "aircap": ("the AirCap variants on a synthetic capture", "mocapgraph.benchmarks.aircap:bench_aircap", {}),
     "smartmocap": (
-        "SmartMocap on a rich capture: camera configurations, with and without the motion prior",
-        "mocapgraph.benchmarks.smartmocap:bench_smartmocap", {"workers": ("parallel chunks", {})},
+        "SmartMocap on a rich capture (camera configurations, with and without the motion prior) and on phones captures of five CMU takes "
+        "(with and without the phones' IMUs and the cameras' motion model)",
+        "mocapgraph.benchmarks.smartmocap:bench_smartmocap",
+        {"workers": ("parallel chunks", {}), "sections": ("comma-separated: rich, phones", {}),
+         "phones_duration_s": ("seconds of each phones capture", {"flag": "--phones-duration"})},
     ),
     "faults": (
         "SmartMocap with realistic detector faults against none, and with swap handling off (rich, phones)",

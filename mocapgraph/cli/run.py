@@ -127,6 +127,7 @@ def add_parsers(subparsers) -> None:
     flags.add("workers", "parallel chunks")
     flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
     flags.add("keypoint_offsets", "no last pass with the detector's keypoint-definition offsets (nor its outlier views left out)")
+    flags.add("imu", "leave the moving cameras' IMU logs unused (docs/phone-imu.md)")
     flags.add("covariances", "skip the marginal covariances")
     smartmocap.add_argument("--resume", action="store_true", help="after a run that was stopped: keep the chunks it solved, solve the rest")
 

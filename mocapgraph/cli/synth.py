@@ -13,7 +13,7 @@ def cmd_synth(args) -> None:
     reserve_output(args.out, args.overwrite, MANIFEST)
     capture = synthesize(
         args.preset, seed=args.seed, duration_s=args.duration_s, motion=args.motion, detectors=args.detectors,
-        detector_faults=args.detector_faults, image_scale=args.image_scale,
+        detector_faults=args.detector_faults, image_scale=args.image_scale, imu=args.imu,
     )  # fmt: skip
     speeds = {}
     render = None
@@ -54,4 +54,5 @@ def add_parsers(subparsers) -> None:
     )  # fmt: skip
     synth.add_argument("--render", action="store_true",
                        help="also render each camera's video (MP4: textured ground, walls, crates, poles and the body's mesh; docs/capture-format.md)")
+    synth.add_argument("--no-imu", dest="imu", action="store_false", help="no IMU logs on the carried phones of phones (docs/phone-imu.md)")
     synth.set_defaults(func=cmd_synth)

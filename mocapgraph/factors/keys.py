@@ -8,6 +8,8 @@ GTSAM keys are ``gtsam.symbol(char, index)``:
 | joint rotations of body state ``i`` (21 axis-angle vectors, radians) | ``pose_key(i)`` = ``symbol('q', i)`` | ``Vector(63)`` |
 | shape of the subject (one per sequence) | ``shape_key()`` = ``symbol('b', 0)`` | ``Vector(S)`` |
 | pose of camera ``c`` at its frame ``j`` (world_T_camera) | ``camera_key(c, j)`` = ``symbol('c', c·10⁶ + j)`` | ``gtsam.Pose3`` |
+| velocity of moving camera ``c`` at its frame ``j`` (world frame, m/s; cameras with an IMU log) | ``camera_velocity_key(c, j)`` = ``symbol('u', c·10⁶ + j)`` | ``Vector(3)`` |
+| IMU bias of moving camera ``c`` at its frame ``j`` (accelerometer m/s², gyroscope rad/s) | ``camera_bias_key(c, j)`` = ``symbol('w', c·10⁶ + j)`` | ``imuBias.ConstantBias`` |
 | common world-frame offset of camera ``c``'s GPS/IMU prior | ``camera_offset_key(c)`` = ``symbol('o', c)`` | ``gtsam.Pose3`` |
 | vehicle navigation state ``n`` (GPS/IMU fusion, per vehicle graph) | ``nav_keys(n)`` = ``symbol('x'|'v'|'i', n)`` | ``Pose3``, ``Vector3``, ``imuBias.ConstantBias`` |
 | GPS/barometer offsets at navigation state ``n`` (slow sensor drift) | ``drift_key(n)`` = ``symbol('d', n)`` | ``Vector(4)`` |
@@ -45,6 +47,14 @@ def camera_key(camera: int, frame: int) -> int:
     if not 0 <= frame < CAMERA_STRIDE:
         raise ValueError(f"camera frame index {frame} outside [0, {CAMERA_STRIDE})")
     return gtsam.symbol("c", camera * CAMERA_STRIDE + frame)
+
+
+def camera_velocity_key(camera: int, frame: int) -> int:
+    return gtsam.symbol("u", camera_key(camera, frame) - gtsam.symbol("c", 0))
+
+
+def camera_bias_key(camera: int, frame: int) -> int:
+    return gtsam.symbol("w", camera_key(camera, frame) - gtsam.symbol("c", 0))
 
 
 def camera_offset_key(camera: int) -> int:

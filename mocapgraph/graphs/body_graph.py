@@ -3,7 +3,8 @@
 :class:`BodyGraph` adds, per body state, the reprojection of its observations (one factor per
 keypoint format and interpolation fraction, all its cameras at once so that forward kinematics
 is shared) and the pose priors; between states, the temporal smoothness of root, joint rotations
-and (optionally) 3D joints; per moving camera, the smoothness of its consecutive frames; and on
+and (optionally) 3D joints; per moving camera, the smoothness of its consecutive frames and,
+with an IMU log, GTSAM's preintegrated IMU factors between them (:mod:`~mocapgraph.graphs.camera_imu`); and on
 request the shape prior, the ground terms, the pose VAE and the motion prior. It inserts initial
 values from an :class:`~mocapgraph.graphs.state_model.Estimate`, reads one back, orders the
 elimination along time, and computes the covariances a result reports.
@@ -28,7 +29,19 @@ from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
-from mocapgraph.factors.keys import focal_key, keypoint_offset_key, motion_frame_key, motion_latent_key, pose_key, pose_latent_key, root_key, shape_key
+from mocapgraph.factors.keys import (
+    camera_bias_key,
+    camera_velocity_key,
+    focal_key,
+    keypoint_offset_key,
+    motion_frame_key,
+    motion_latent_key,
+    pose_key,
+    pose_latent_key,
+    root_key,
+    shape_key,
+)
+from mocapgraph.factors.navigation import FusionNoise
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import (
@@ -39,6 +52,7 @@ from mocapgraph.factors.smoothness import (
     pose_velocity_factor,
     root_smoothness_factor,
 )
+from mocapgraph.graphs.camera_imu import PHONE_GYRO_NOISE, CameraImu, bias_prior, imu_factor
 from mocapgraph.graphs.solver import annealed_stages
 from mocapgraph.graphs.state_model import Estimate, Observation, StateModel
 from mocapgraph.graphs.uncertainty import joint_covariances
@@ -116,6 +130,10 @@ class GraphOptions:
     offsets: str = "fixed"
     offset_sigma_m: float = 0.015
     offset_parts: tuple[str, ...] = ("shoulder",)
+    # Moving cameras' IMU logs, when the graph is given any (mocapgraph.graphs.camera_imu): the
+    # gyroscope at its datasheet noise, the accelerometer down-weighted. At its datasheet noise
+    # the accelerometer took two of five 3 s phones takes metres away (bench smartmocap phones).
+    imu_noise: FusionNoise = PHONE_GYRO_NOISE
 
     def check(self) -> None:
         for name, value, choices in (
@@ -188,11 +206,15 @@ class BodyGraph:
         keypoint_offsets: per keypoint format, ``(K, 3)`` its points' definition offsets
             (:mod:`mocapgraph.body.keypoint_offsets`), e.g. from :func:`~mocapgraph.graphs.keypoint_fit.estimate_offsets`:
             held, or the start of their estimate with ``options.offsets == "estimate"``.
+        imu: per camera, its IMU log (:mod:`mocapgraph.graphs.camera_imu`): an estimated moving
+            camera's consecutive frames the log covers get an IMU factor, with a velocity and a
+            bias at each.
     """
 
     def __init__(
         self, model: StateModel, body: BodyModel, options: GraphOptions, *, learned: LearnedPriors | None = None,
         fixed_cameras: dict[int, np.ndarray] | None = None, fixed_shape=None, keypoint_offsets: dict[str, np.ndarray] | None = None,
+        imu: dict[int, CameraImu] | None = None,
     ):  # fmt: skip
         options.check()
         self.keypoint_offsets = dict(keypoint_offsets or {})
@@ -219,6 +241,12 @@ class BodyGraph:
         bases = {fmt: offset_basis(body.table(body.default_shape, keypoints=fmt), options.offset_parts) for fmt in self.format_index if fmt != "body" and options.offsets == "estimate"}
         self.offset_bases = {fmt: basis for fmt, basis in bases.items() if basis.shape[-1]}
         self.windows: list[int] = []
+        # per estimated moving camera with an IMU log, the pairs of its consecutive frames the log covers
+        self.imu = {c: log for c, log in (imu or {}).items() if c in self.estimated and model.cameras[c].moving}
+        self.imu_steps: dict[int, list[tuple[int, int]]] = {}
+        for c, log in self.imu.items():
+            frames, times = self.model.camera_frames(c), self.model.cameras[c].timestamps
+            self.imu_steps[c] = [(int(a), int(b)) for a, b in zip(frames[:-1], frames[1:]) if log.covers(times[a], times[b])]
         # per state, its reprojection factors' labellings and the observations they cover
         self.labellings: dict[int, list[tuple[Labelling, list[Observation]]]] = {}
 
@@ -269,7 +297,22 @@ class BodyGraph:
         for fmt, basis in self.offset_bases.items():
             start = self.keypoint_offsets.get(fmt, np.zeros(basis.shape[:2]))
             values.insert(self.offset_key(fmt), offset_parameters(basis, start))
+        for c in self.imu:
+            frames = self.imu_frames(c, states)
+            if len(frames):
+                # started at the central differences of the camera's centres (the velocity is no output)
+                times = self.model.cameras[c].timestamps[frames]
+                centres = estimate.cameras[c][frames, :3, 3]
+                velocity = np.gradient(centres, times, axis=0) if len(frames) > 1 else np.zeros((1, 3))
+                for j, v in zip(frames, velocity):
+                    values.insert(camera_velocity_key(c, j), v)
+                    values.insert(camera_bias_key(c, j), gtsam.imuBias.ConstantBias())
         return values
+
+    def imu_frames(self, c: int, states: range | None = None) -> np.ndarray:
+        """``(M,)`` camera ``c``'s frames (of ``states``, default all) in an IMU step: those with a velocity and a bias."""
+        frames = np.unique(np.array(self.imu_steps.get(c, []), dtype=int).ravel())
+        return np.intersect1d(frames, self.model.camera_frames(c, states))
 
     def offset_key(self, fmt: str) -> int:
         """The key of detector format ``fmt``'s offset parameters."""
@@ -418,6 +461,20 @@ class BodyGraph:
                     keys = [self.model.camera_var(c, j) for j in triple]
                     graph.add(camera_acceleration_factor(keys, cam.timestamps[list(triple)], o.camera_sigma_m_s2))
 
+    def add_camera_imu(self, graph: gtsam.NonlinearFactorGraph) -> None:
+        """Every IMU step of every camera with a log: its ``CombinedImuFactor``, and the bias's
+        prior where a run of steps starts (the first frame, or after a gap)."""
+        for c, log in self.imu.items():
+            params, times = log.params(self.options.imu_noise), self.model.cameras[c].timestamps
+            previous = None
+            for a, b in self.imu_steps[c]:
+                if a != previous:
+                    graph.add(bias_prior(camera_bias_key(c, a), self.options.imu_noise))
+                keys = (self.model.camera_var(c, a), self.model.camera_var(c, b))
+                velocities, biases = (camera_velocity_key(c, a), camera_velocity_key(c, b)), (camera_bias_key(c, a), camera_bias_key(c, b))
+                graph.add(imu_factor(keys, velocities, biases, log.preintegrate(float(times[a]), float(times[b]), params)))
+                previous = b
+
     def add_ground(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
         """E_HGP on state ``i``'s joints (the world's z = 0 plane)."""
         graph.add(joint_ground_factor(self.cache("body"), root_key(i), pose_key(i), self.shape_key, self.options.ground_sigma_m, fixed_shape=self.fixed_shape))
@@ -486,6 +543,7 @@ class BodyGraph:
         self.add_focal_priors(graph)
         self.add_offset_priors(graph)
         self.add_camera_smoothness(graph)
+        self.add_camera_imu(graph)
         if ground:
             self.add_camera_ground(graph)
         values = self.values(estimate)
@@ -518,7 +576,7 @@ class BodyGraph:
                 timed.append((t, 2, deferred[i]))
         for key, (c, j) in self.camera_vars().items():
             if self.model.cameras[c].moving:
-                timed.append((self.model.frame_time(c, j), 0, [key]))
+                timed.append((self.model.frame_time(c, j), 0, [key, camera_velocity_key(c, j), camera_bias_key(c, j)]))
         timed.sort(key=lambda item: (item[0], item[1]))
         order = [key for _, _, keys in timed for key in keys if values.exists(key)]
         listed = set(order)

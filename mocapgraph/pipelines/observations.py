@@ -10,6 +10,7 @@ import numpy as np
 
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.errors import MocapgraphError
+from mocapgraph.graphs.camera_imu import CameraImu
 from mocapgraph.graphs.state_model import CameraDetections, CameraInfo, StateModel, build_state_model
 
 
@@ -63,3 +64,19 @@ def capture_state_model(
             if det is not None:
                 found.append(CameraDetections(c, name, det.format, det.keypoints, cam.distortion, gates.get((cam.name, name))))
     return build_state_model(camera_infos(capture), found, sync, reference=reference, rate_hz=rate_hz)
+
+
+def camera_imus(capture: Capture) -> tuple[dict[int, CameraImu], list[str]]:
+    """The IMU log of every moving camera that has one and a mount placing the camera on it
+    (index → :class:`~mocapgraph.graphs.camera_imu.CameraImu`), and notes on the logs not used."""
+    out, notes = {}, []
+    for c, cam in enumerate(capture.cameras):
+        if "imu" not in cam.sensors:
+            continue
+        if not cam.moving:
+            notes.append(f"camera {cam.name}: static, its IMU log not used")
+        elif cam.mount is None:
+            notes.append(f"camera {cam.name}: IMU log not used, no mount places the camera on the IMU")
+        else:
+            out[c] = CameraImu.from_log(cam.sensors["imu"], cam.mount, cam.name)
+    return out, notes

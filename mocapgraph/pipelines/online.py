@@ -240,7 +240,9 @@ def static_rig(capture: Capture) -> Capture:
     for cam in capture.cameras:
         detectors = {n: Detector(n, d.format, np.zeros((0,) + d.keypoints.shape[1:])) for n, d in cam.detectors.items()}
         extrinsics = None if cam.moving or cam.extrinsics is None else np.asarray(cam.extrinsics).reshape(-1, 4, 4)[:1]
-        cameras.append(Camera(cam.name, cam.K, cam.distortion, cam.image_size, cam.moving, np.zeros(0), cam.frame_rate, detectors, extrinsics, cam.mount))
+        # a phone's mount places its IMU, which the online loop does not use; a vehicle's makes the rig AirCap's
+        mount = None if set(cam.sensors) == {"imu"} else cam.mount
+        cameras.append(Camera(cam.name, cam.K, cam.distortion, cam.image_size, cam.moving, np.zeros(0), cam.frame_rate, detectors, extrinsics, mount))
     return Capture(capture.name, cameras, capture.world_frame, metadata=dict(capture.metadata))
 
 

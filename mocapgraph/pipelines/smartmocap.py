@@ -41,6 +41,7 @@ from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions, LearnedPriors, motion_windows
+from mocapgraph.graphs.camera_imu import covered_runs, gyro_aligned_rotations
 from mocapgraph.graphs.initialisation import (
     INITIALISERS,
     coco_views,
@@ -57,7 +58,7 @@ from mocapgraph.graphs.keypoint_fit import estimate_offsets, outlier_views, repr
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.executors import make_executor
-from mocapgraph.pipelines.observations import capture_state_model
+from mocapgraph.pipelines.observations import camera_imus, capture_state_model
 from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, swap_notes
 from mocapgraph.priors.motion_windows import WINDOW
 
@@ -92,6 +93,9 @@ class SmartmocapOptions:
     offset_iterations: int = 15
     # Views left out, and the sequence solved again, up to this many times while more show up.
     offset_rounds: int = 2
+    # Moving cameras' IMU logs (gyroscope and accelerometer, with the capture's mount) as
+    # preintegrated factors between their frames (mocapgraph.graphs.camera_imu).
+    imu: bool = True
     executor: str = "local"
     workers: int = 2
     address: str | None = None
@@ -166,6 +170,7 @@ class ChunkTask:
     model: StateModel
     start: Estimate
     options: SmartmocapOptions
+    imu: dict = field(default_factory=dict)
 
 
 def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
@@ -184,7 +189,8 @@ def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
     # readily (false relabelled runs, 0.2-0.5 m off, on rich without swaps); the final pass,
     # from the stitched cameras, does it (moving_body_swaps).
     graph_options = replace(o.graph, focal="fixed", moving_body_swaps=False)
-    bg = BodyGraph(task.model, load_body_model(), graph_options, learned=LearnedPriors.load(o.graph.pose_prior, o.motion_prior if n == WINDOW else "none"))
+    learned = LearnedPriors.load(o.graph.pose_prior, o.motion_prior if n == WINDOW else "none")
+    bg = BodyGraph(task.model, load_body_model(), graph_options, learned=learned, imu=task.imu)
     graph, values = sequence_graph(bg, task.start, o.gauge_sigmas)
     body_keys = [root_key(i) for i in range(n)] + [pose_key(i) for i in range(n)] + [shape_key()]
     phases = [
@@ -331,7 +337,7 @@ def _solve_chunks(tasks: list[ChunkTask], options: SmartmocapOptions) -> list[tu
 
 def _chunk_file(directory: str, task: ChunkTask) -> Path:
     """Where a chunk's solution is kept: named by a digest of everything its solve depends on."""
-    digest = hashlib.sha256(pickle.dumps((task.model, task.start, replace(task.options, checkpoint=None)))).hexdigest()
+    digest = hashlib.sha256(pickle.dumps((task.model, task.start, replace(task.options, checkpoint=None), task.imu))).hexdigest()
     return Path(directory) / f"chunk-{digest[:24]}.pkl"
 
 
@@ -378,19 +384,27 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             notes.append(f"camera {name}: never saw the person together with the reference camera {model.names[reference]}; not estimated")
     model = model.only(placed)
     notes += _degeneracy_notes(model, placed)
+    imu, imu_skipped = camera_imus(capture) if options.imu else ({}, [])
+    notes += imu_skipped
+    for c, readings in imu.items():
+        # the views' per-frame rotations of a moving camera are noisy and sometimes flipped: its
+        # gyroscope's track, turned onto them as a whole, starts every solve instead
+        times = model.cameras[c].timestamps
+        for run in covered_runs(readings, model.camera_frames(c), times):
+            start.cameras[c][run, :3, :3] = gyro_aligned_rotations(readings, times[run], start.cameras[c][run, :3, :3], options.graph.imu_noise)
     for note in notes:
         log.info("smartmocap: %s", note)
     n = model.num_states
     bounds = chunk_bounds(n, options.chunk_size)
     log.info("smartmocap: %d body states, %d chunks of <= %d, executor %s (%d workers)", n, len(bounds), options.chunk_size, options.executor, options.workers)
-    tasks = [ChunkTask(model.span(a, b), start.span(a, b), options) for a, b in bounds]
+    tasks = [ChunkTask(model.span(a, b), start.span(a, b), options, imu) for a, b in bounds]
     solved = _solve_chunks(tasks, options)
     chunk_seconds = [s for _, s in solved]
     stitched = stitch(body, model, [(a, b, est) for (a, b), (est, _) in zip(bounds, solved)])
     log.info("smartmocap: chunks %.2f s median; stitched; final optimisation", np.median(chunk_seconds))
 
     learned = LearnedPriors.load(options.graph.pose_prior, options.motion_prior)
-    bg, graph, solved_final = final_pass(model, body, options, learned, stitched, {}, options.final_iterations)
+    bg, graph, solved_final = final_pass(model, body, options, learned, stitched, {}, options.final_iterations, imu=imu)
     estimate = bg.read(solved_final.values, stitched)
     estimate.log = list(solved_final.log)
     offsets: dict[str, np.ndarray] = {}
@@ -413,7 +427,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             for c, frames in outliers.items():
                 left_out.setdefault(c, []).append(frames)
             model = model.without(outliers)
-            bg, graph, solved_final = final_pass(model, body, options, learned, estimate, offsets, options.offset_iterations, estimate_offsets=joint)
+            bg, graph, solved_final = final_pass(model, body, options, learned, estimate, offsets, options.offset_iterations, estimate_offsets=joint, imu=imu)
             estimate = bg.read(solved_final.values, estimate)
             estimate.log += list(solved_final.log)
             if joint:
@@ -430,7 +444,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
                       for fit in fits]  # fmt: skip
     labels = bg.relabelled(estimate)
     swaps = combined_swaps(model, before, labels)
-    notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate))
+    notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + camera_support_notes(bg)
     reprojection = reprojection_medians(body, model.relabelled(labels), estimate, offsets)
     log.info("smartmocap: reprojection median %.1f px (per camera %s)", reprojection["all"], reprojection["camera"])
     seconds = time.perf_counter() - t_start
@@ -448,6 +462,30 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     return result
 
 
+def camera_support_notes(bg: BodyGraph) -> list[str]:
+    """Per estimated moving camera, what its poses rest on: its views of the body (through which
+    the other cameras), the constant-velocity model if used, and its IMU over which frames."""
+    notes = []
+    model = bg.model
+    views = "its views of the body (the other cameras through the body)" + (" and the constant-velocity model" if bg.options.camera_sigma_m_s2 is not None else "")
+    for c in bg.estimated:
+        if not model.cameras[c].moving:
+            continue
+        name, frames = model.names[c], model.camera_frames(c)
+        if c not in bg.imu or not bg.imu_steps[c]:
+            why = "no IMU log" if c not in bg.imu else "its IMU log covers none of its frame steps"
+            notes.append(f"camera {name}: {why}; its poses rest on {views}")
+            continue
+        missing = np.setdiff1d(frames, bg.imu_frames(c))
+        notes.append(
+            f"camera {name}: IMU on {len(bg.imu_steps[c])} of {len(frames) - 1} frame steps: rotation increments from the gyroscope, "
+            f"velocity changes from the accelerometer; its position still rests on {views}"
+            + (f"; frames {_ranges(missing)} without IMU on those alone" if len(missing) else "")
+            + "; the log's clock taken as the camera's"
+        )
+    return notes
+
+
 def _ranges(frames: np.ndarray) -> str:
     """``[3, 4, 5, 9]`` → ``"3-5, 9"``."""
     runs = np.split(frames, np.flatnonzero(np.diff(frames) > 1) + 1)
@@ -456,12 +494,13 @@ def _ranges(frames: np.ndarray) -> str:
 
 def final_pass(
     model: StateModel, body: BodyModel, options: SmartmocapOptions, learned: LearnedPriors, start: Estimate, offsets: dict, iterations: int,
-    estimate_offsets: bool = False,
+    estimate_offsets: bool = False, imu: dict | None = None,
 ):  # fmt: skip
     """The whole sequence solved from ``start`` with the formats' keypoint ``offsets`` (held, or
-    the start of their estimate with ``estimate_offsets``): its graph builder, graph and solve."""
+    the start of their estimate with ``estimate_offsets``) and the cameras' ``imu`` logs: its
+    graph builder, graph and solve."""
     graph_options = replace(options.graph, offsets="estimate") if estimate_offsets else options.graph
-    bg = BodyGraph(model, body, graph_options, learned=learned, keypoint_offsets=offsets)
+    bg = BodyGraph(model, body, graph_options, learned=learned, keypoint_offsets=offsets, imu=imu)
     graph, values = sequence_graph(bg, start, options.gauge_sigmas)
     stages = bg.stages(iterations, bg.time_ordering(values))
     if offsets:

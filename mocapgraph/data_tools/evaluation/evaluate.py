@@ -176,7 +176,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         out["mpjpe_keypoints_m"] = float(M.mpjpe_m(est_kp, ref_kp[:, mapped]))
         per_frame["mpjpe_keypoints_m"] = M.mpjpe_m(est_kp, ref_kp[:, mapped]).per_item
 
-    est_cams, ref_cams, moving_pos, moving_ref, static_est, static_ref = [], [], [], [], [], []
+    est_cams, ref_cams, moving_pos, moving_ref, static_est, static_ref, moving_est = [], [], [], [], [], [], []
     for name, (est, ref) in matched_cameras(result, capture).items():
         cam = capture.camera(name)
         est_cams.append(est)
@@ -185,6 +185,8 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         if not cam.moving:
             static_est.append(est)
             static_ref.append(ref)
+        if cam.moving:
+            moving_est.append((est, ref))
         if cam.moving and len(est) >= 3:
             fit = procrustes_trajectory(est[:, :3, 3], ref[:, :3, 3], est[:, :3, :3], ref[:, :3, :3])
             moving_pos.append(fit.apply_pose(est))
@@ -195,6 +197,10 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
     if static_est:
         out["static_mcpe_m"] = float(M.mcpe_m(np.concatenate(static_est), np.concatenate(static_ref)))
         out["static_mcoe_rad"] = float(M.mcoe_rad(np.concatenate(static_est), np.concatenate(static_ref)))
+    if moving_est:
+        # after the result's alignment only (the ground-plane frame's similarity), not per camera
+        out["moving_mcpe_m"] = float(M.mcpe_m(np.concatenate([e for e, _ in moving_est]), np.concatenate([r for _, r in moving_est])))
+        out["moving_mcoe_rad"] = float(M.mcoe_rad(np.concatenate([e for e, _ in moving_est]), np.concatenate([r for _, r in moving_est])))
     if moving_pos:
         out["moving_mcpe_procrustes_m"] = float(M.mcpe_m(np.concatenate(moving_pos), np.concatenate(moving_ref)))
         out["moving_mcoe_procrustes_rad"] = float(M.mcoe_rad(np.concatenate(moving_pos), np.concatenate(moving_ref)))

@@ -8,8 +8,8 @@ OpenCV (x right, y down, z forward). ``docs/scenarios.md`` tabulates every prese
 
 Presets: ``aircap`` (3 UAVs, no gimbal, unsynchronised, GPS/IMU/baro/self-pose), ``airpose``
 (2 gimballed UAVs, synchronised, no sensors), ``rich`` (7 static room cameras + 1 hand-held),
-``phones`` (2 static + 2 walking phones around a small field). The same seed gives the same
-numbers.
+``phones`` (2 static + 2 walking phones around a small field, the walking ones with an IMU
+each by default). The same seed gives the same numbers.
 """
 
 from __future__ import annotations
@@ -23,9 +23,11 @@ from mocapgraph.body.rotations import rotvec_to_matrix
 from mocapgraph.data_tools.geometry.camera_model import in_frame_mask
 from mocapgraph.data_tools.sim.sensors import (
     GRAVITY_M_S2,
+    PhoneImu,
     VehicleSensors,
     VehicleTrajectory,
     position_spline,
+    simulate_phone_imu,
     simulate_vehicle_sensors,
     smooth_noise,
 )
@@ -53,12 +55,14 @@ class SimCamera:
         frame_rate: nominal frames per second.
         timestamps: ``(T_c,)`` seconds of each frame.
         world_T_camera: ``(T_c, 4, 4)`` true pose at ``timestamps``.
-        mount: ``(4, 4)`` vehicle_T_camera for cameras rigidly mounted on a vehicle with sensors.
+        mount: ``(4, 4)`` vehicle_T_camera for cameras rigidly mounted on a vehicle with sensors
+            (a carried phone: the camera in its IMU's frame).
         vehicle_poses: ``(N, 4, 4)`` true world_T_vehicle at ``vehicle_times`` (100 Hz), or None.
         vehicle_times: ``(N,)`` seconds, or None.
         sensors: sensor logs by kind in the ``SENSOR_FIELDS`` layout of the capture format.
         extrinsics: what a calibrated user knows: ``(1, 4, 4)`` for static cameras of ``rich`` and
             ``phones`` (true pose plus a small calibration error); None otherwise.
+        imu_time_offset_s: for a phone with an IMU, its log's clock minus the camera's, seconds.
     """
 
     name: str
@@ -74,6 +78,7 @@ class SimCamera:
     vehicle_times: np.ndarray | None = None
     sensors: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     extrinsics: np.ndarray | None = None
+    imu_time_offset_s: float | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -473,8 +478,27 @@ def _rich(subject: _Subject, t0: float, t1: float, root: np.random.SeedSequence)
 # phones: two phones on tripods and two carried by people walking along the walls of a field
 
 
-def _phones(subject: _Subject, t0: float, t1: float, root: np.random.SeedSequence) -> list[SimCamera]:
+# The back camera in the phone's IMU frame (Android's device axes: x right and y up along the
+# screen held in portrait, z out of the screen): the lens 6 cm above and 2 cm beside the IMU,
+# looking away from the screen; in landscape the phone is turned a quarter to the left.
+PHONE_LENS_M = (0.02, 0.06, -0.005)
+PHONE_MOUNTS = {
+    (1080, 1920): np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]),  # portrait
+    (1920, 1080): np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]),  # landscape
+}
+
+
+def phone_mount(image_size: tuple[int, int]) -> np.ndarray:
+    """``(4, 4)`` imu_T_camera of a phone's back camera filming in ``image_size`` (portrait or landscape)."""
+    mount = np.eye(4)
+    mount[:3, :3] = PHONE_MOUNTS[tuple(image_size)]
+    mount[:3, 3] = PHONE_LENS_M
+    return mount
+
+
+def _phones(subject: _Subject, t0: float, t1: float, root: np.random.SeedSequence, imu: PhoneImu | None) -> list[SimCamera]:
     rng = np.random.default_rng(root)
+    imu_streams = root.spawn(2)  # apart from rng: the rig is the same with and without IMUs
     times = _frame_times(rng, t0, t1, FRAME_RATE_HZ)
     centre, half = _area(subject, times, (7.5, 5.0), 2.0)
     landscape, portrait, focal = (1920, 1080), (1080, 1920), (1350.0, 1500.0)
@@ -495,8 +519,13 @@ def _phones(subject: _Subject, t0: float, t1: float, root: np.random.SeedSequenc
         ("phone_walk1", np.column_stack([x, np.full_like(x, centre[1] + half[1] - 0.3)]), portrait),
         ("phone_walk2", np.column_stack([np.full_like(y, centre[0] - half[0] + 0.3), y]), landscape),
     ]
-    for name, path, size in walls:
-        cameras.append(_camera(rng, name, _handheld(rng, times, path, target), size, focal, (0.0, 0.06), times))
+    for (name, path, size), stream in zip(walls, imu_streams):
+        camera = _camera(rng, name, _handheld(rng, times, path, target), size, focal, (0.0, 0.06), times)
+        if imu is not None:
+            camera.mount = phone_mount(size)
+            log, camera.imu_time_offset_s = simulate_phone_imu(times, camera.world_T_camera, camera.mount, np.random.default_rng(stream), imu)
+            camera.sensors = {"imu": log}
+        cameras.append(camera)
     return cameras
 
 
@@ -512,6 +541,7 @@ def scenario_cameras(
     *,
     aircap: AircapParams = AircapParams(),
     sensors: VehicleSensors = VehicleSensors(),
+    phone_imu: PhoneImu | None = PhoneImu(),
 ) -> list[SimCamera]:
     """Cameras (and vehicles with sensors) of ``preset`` around the subject's root trajectory.
 
@@ -524,6 +554,7 @@ def scenario_cameras(
             to the subject's last timestamp; None = the whole subject trajectory.
         aircap: formation and flight dynamics of ``aircap`` (ignored by the other presets).
         sensors: noise of the vehicles' sensors in ``aircap`` (ignored by the other presets).
+        phone_imu: the IMUs of the carried phones in ``phones`` (None: no IMU logs).
     """
     if preset not in PRESETS:
         raise MocapgraphError(f"unknown scenario preset {preset!r}; presets: {', '.join(PRESETS)}")
@@ -538,4 +569,6 @@ def scenario_cameras(
     root = np.random.SeedSequence([int(seed), PRESETS.index(preset)])
     if preset == "aircap":
         return _aircap(subject, t0, t1, root, aircap, sensors)
-    return {"airpose": _airpose, "rich": _rich, "phones": _phones}[preset](subject, t0, t1, root)
+    if preset == "phones":
+        return _phones(subject, t0, t1, root, phone_imu)
+    return {"airpose": _airpose, "rich": _rich}[preset](subject, t0, t1, root)

@@ -213,7 +213,12 @@ def simulate_imu(times, poses, rng: np.random.Generator, noise: ImuNoise = ImuNo
     :class:`VehicleTrajectory` through the samples.
     """
     times, poses = _samples(times, poses)
-    traj = VehicleTrajectory(times, poses)
+    return imu_readings(VehicleTrajectory(times, poses), times, rng, noise)
+
+
+def imu_readings(traj: VehicleTrajectory, times: np.ndarray, rng: np.random.Generator, noise: ImuNoise) -> dict[str, np.ndarray]:
+    """IMU log ``{t, accel, gyro}`` of ``traj`` read at ``times (N,)`` (within its span), as
+    :func:`simulate_imu` describes."""
     R = traj.rotation(times)
     specific = np.einsum("nji,nj->ni", R, traj.acceleration(times) - GRAVITY_WORLD)
     omega = traj.angular_velocity(times)
@@ -223,6 +228,72 @@ def simulate_imu(times, poses, rng: np.random.Generator, noise: ImuNoise = ImuNo
     gyro = gyro + rng.normal(scale=noise.gyro_noise_rad_s, size=gyro.shape)
     return {"t": times.copy(), "accel": accel, "gyro": gyro}
 
+
+@dataclass(frozen=True)
+class PhoneImu:
+    """A phone's IMU: consumer MEMS as in today's phones, read at ``rate_hz`` on its own clock.
+
+    White-noise densities from the datasheets of the Bosch BMI160 (gyroscope 0.007 °/s/√Hz,
+    accelerometer 180 µg/√Hz) and the TDK ICM-20600 (0.004 °/s/√Hz, 100 µg/√Hz); the constant
+    biases are what is left after the phone's own calibration (the raw parts' zero offsets are
+    ±3 °/s and ±40 mg); the bias random walks are the values visual-inertial odometry uses for
+    phone IMUs (OpenVINS' and Kalibr's example configurations, about 2e-5 rad/s/√s and
+    3e-3 m/s²/√s). ``docs/phone-imu.md`` discusses them.
+
+    Attributes:
+        rate_hz: samples per second.
+        accel_noise_m_s2_sqrt_hz: accelerometer white-noise density (1.8e-3: 180 µg/√Hz).
+        gyro_noise_rad_s_sqrt_hz: gyroscope white-noise density (1.2e-4: 0.007 °/s/√Hz).
+        accel_bias_m_s2: std of the constant accelerometer bias per axis (about 5 mg).
+        gyro_bias_rad_s: std of the constant gyroscope bias per axis (about 0.3 °/s).
+        accel_bias_walk_m_s2_sqrt_s: accelerometer bias random-walk density.
+        gyro_bias_walk_rad_s_sqrt_s: gyroscope bias random-walk density.
+        max_time_offset_s: the log's clock is the camera's plus an offset drawn uniformly within
+            ± this (sensor and frame timestamps of phones disagree by a few to tens of ms).
+    """
+
+    rate_hz: float = 200.0
+    accel_noise_m_s2_sqrt_hz: float = 1.8e-3
+    gyro_noise_rad_s_sqrt_hz: float = 1.2e-4
+    accel_bias_m_s2: float = 0.05
+    gyro_bias_rad_s: float = 0.005
+    accel_bias_walk_m_s2_sqrt_s: float = 3e-3
+    gyro_bias_walk_rad_s_sqrt_s: float = 2e-5
+    max_time_offset_s: float = 0.01
+
+    def noise(self) -> ImuNoise:
+        """The per-sample errors at ``rate_hz`` (``σ_sample = density · √rate``)."""
+        root = math.sqrt(self.rate_hz)
+        return ImuNoise(
+            self.accel_noise_m_s2_sqrt_hz * root, self.gyro_noise_rad_s_sqrt_hz * root, self.accel_bias_m_s2, self.gyro_bias_rad_s,
+            self.accel_bias_walk_m_s2_sqrt_s, self.gyro_bias_walk_rad_s_sqrt_s,
+        )  # fmt: skip
+
+
+def simulate_phone_imu(
+    times, world_T_camera, imu_T_camera, rng: np.random.Generator, phone: PhoneImu = PhoneImu()
+) -> tuple[dict[str, np.ndarray], float]:
+    """A hand-held phone's IMU log ``{t, accel, gyro}`` and the offset of its clock, seconds.
+
+    Args:
+        times: ``(T,)`` the camera's frame times (at least 6), seconds.
+        world_T_camera: ``(T, 4, 4)`` the camera's true poses at ``times``.
+        imu_T_camera: ``(4, 4)`` the camera in the IMU's frame (the capture's ``mount``).
+        rng: the noise, biases and clock offset are drawn from it.
+        phone: the IMU's errors and rate.
+
+    The IMU's trajectory is :class:`VehicleTrajectory` through ``world_T_camera · camera_T_imu``;
+    it is read every ``1 / rate_hz`` s over the frames' span, and the log's times are those on
+    the phone's IMU clock, ``t + offset``.
+    """
+    times, poses = _samples(times, world_T_camera)
+    imu_T_camera = as_checked_array(imu_T_camera, "imu_T_camera", (4, 4))
+    traj = VehicleTrajectory(times, poses @ np.linalg.inv(imu_T_camera))
+    n = int(math.floor((times[-1] - times[0]) * phone.rate_hz + 1e-9)) + 1
+    log = imu_readings(traj, times[0] + np.arange(n) / phone.rate_hz, rng, phone.noise())
+    offset = float(rng.uniform(-phone.max_time_offset_s, phone.max_time_offset_s))
+    log["t"] = log["t"] + offset
+    return log, offset
 
 
 # ---------------------------------------------------------------------------------------------

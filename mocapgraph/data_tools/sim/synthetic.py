@@ -18,6 +18,7 @@ from mocapgraph.data_tools.io.capture import Camera, Capture, GroundTruth
 from mocapgraph.data_tools.sim.detectors import DETECTOR_PRESETS, FAULT_LEVELS, simulate_detections_with_info
 from mocapgraph.data_tools.sim.motion_sources import PROCEDURAL_KINDS, Motion, cmu_motion, procedural_motion
 from mocapgraph.data_tools.sim.scenarios import PRESETS, scenario_cameras
+from mocapgraph.data_tools.sim.sensors import PhoneImu
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.progress import progress_bar
 
@@ -82,6 +83,7 @@ def synthesize(
     noise_scale: float = 1.0,
     detector_faults: str = "realistic",
     image_scale: float = 1.0,
+    imu: bool = True,
 ) -> Capture:
     """A synthetic capture of ``preset`` (``aircap``, ``airpose``, ``rich``, ``phones``).
 
@@ -92,7 +94,9 @@ def synthesize(
     ``detector_faults``: ``none``, ``realistic`` or ``heavy`` (:data:`FAULT_LEVELS`): sustained
     and view-dependent left/right swaps, far-side guesses, keypoint-definition offsets and a size
     bias per detector (``docs/detector_faults.md``); the swaps applied are recorded per camera and
-    detector in ``ground_truth.swaps``.
+    detector in ``ground_truth.swaps``. ``imu``: the carried phones of ``phones`` log their IMU
+    (:class:`~mocapgraph.data_tools.sim.sensors.PhoneImu`; each log's clock offset from its
+    camera in ``metadata.imu_time_offsets_s``); False: no IMU logs.
     """
     if preset not in PRESETS:
         raise MocapgraphError(f"unknown scenario preset {preset!r}; presets: {', '.join(PRESETS)}")
@@ -110,7 +114,9 @@ def synthesize(
         raise MocapgraphError(f"unknown detector {unknown[0]!r}; detectors: {', '.join(DETECTOR_PRESETS)}")
     body = load_body_model()
     subject = subject_motion(preset, motion, duration_s, seed, body)
-    sims = scenario_cameras(preset, subject.timestamps, subject.root[:, :3, 3], seed=seed, duration_s=duration_s)
+    sims = scenario_cameras(
+        preset, subject.timestamps, subject.root[:, :3, 3], seed=seed, duration_s=duration_s, phone_imu=PhoneImu() if imu else None
+    )
     if image_scale != 1.0:
         sims = [scaled_camera(sim, image_scale) for sim in sims]
     streams = np.random.SeedSequence([seed, 0x5EED]).spawn(len(sims) * len(detectors))
@@ -145,6 +151,7 @@ def synthesize(
         truth_cameras[sim.name] = sim.world_T_camera
         truth_swaps[sim.name] = swaps
 
+    offsets = {sim.name: sim.imu_time_offset_s for sim in sims if sim.imu_time_offset_s is not None}
     # Ground truth at every camera frame time, so any pipeline's timestamps match exactly.
     times = np.unique(np.concatenate([cam.timestamps for cam in cameras]))
     root, pose = subject.sample(times)
@@ -165,5 +172,6 @@ def synthesize(
             "noise_scale": float(noise_scale),
             "detector_faults": detector_faults,
             "image_scale": float(image_scale),
+            **({"imu_time_offsets_s": offsets} if offsets else {}),
         },
     )
