@@ -203,9 +203,10 @@ def solve_chunk(task: ChunkTask) -> tuple[Estimate, float]:
         # Labels are re-decided only once the body is free: against the initial mean body (held
         # in the first two phases) a camera seen from the side "fits" swapped as often as not.
         bg.relabel(k == len(phases) - 1)
-        # A phase that frees body variables from the mean body anneals from L2 to Geman-McClure:
-        # a limb far from the mean pose (a bent elbow puts the wrist 60-100 px off on the real
-        # clip) lies in the kernel's flat tail, where nothing pulls it in; the roots' phase
+        # The cameras' phase and the pose's anneal from L2 to Geman-McClure, each starting far
+        # from its solution: the cameras from their rough placement, the pose from the mean
+        # body's, where a limb far from it (a bent elbow puts the wrist 60-100 px off on the
+        # real clip) lies in the kernel's flat tail and nothing pulls it in. The roots' phase
         # starts near its solution and stays robust (an L2 stage there cost a third of a
         # chunk's solves for nothing, measured).
         stages = bg.stages(o.chunk_iterations, ordering)[1 if k == 1 else 0 :]
