@@ -107,3 +107,44 @@ def test_killing_run_smartmocap_leaves_no_worker(tmp_path):
     time.sleep(1.0)  # into the chunks' solves
     kill_and_check(run, workers)
     assert not (tmp_path / "res").exists()
+
+
+def descendants(pid: int) -> set[int]:
+    found, todo = set(), [pid]
+    while todo:
+        for child in children(todo.pop()) - found:
+            found.add(child)
+            todo.append(child)
+    return found
+
+
+@pytest.mark.slow  # 10-20 s: starts a local Ray instance
+def test_ray_tasks_die_with_a_killed_driver():
+    """A local Ray instance started by the run: its task workers (``ray::_apply``) and its raylet
+    stop within 10 s of the driver's SIGKILL and release the caller's pipes. Ray's two agent
+    processes (dashboard, runtime environment) outlive the raylet by up to a minute before they
+    notice (measured); they compute nothing."""
+    pytest.importorskip("ray")
+    script = textwrap.dedent(
+        """
+        import time
+        from mocapgraph.pipelines.executors import make_executor
+        with make_executor("ray", 2) as pool:
+            pool.map(time.sleep, [600, 600, 600])
+        """
+    )
+    run = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    tasks: set[int] = set()
+    while len(tasks) < 2:
+        assert time.monotonic() < deadline and run.poll() is None, "no two Ray tasks running after 120 s"
+        time.sleep(0.2)
+        tree = descendants(run.pid)
+        tasks = {p for p in tree if Path(f"/proc/{p}/cmdline").exists() and Path(f"/proc/{p}/cmdline").read_bytes().startswith(b"ray::_apply")}
+    agents = {p for p in tree if Path(f"/proc/{p}/cmdline").exists() and b"Agent" in Path(f"/proc/{p}/cmdline").read_bytes()[:40]}
+    try:
+        kill_and_check(run, tree - agents, within_s=10.0)
+    finally:
+        for p in agents:
+            if running(p):
+                os.kill(p, signal.SIGKILL)
