@@ -311,6 +311,26 @@ def test_a_damaged_calibration_file_is_refused(tmp_path, name, content, message)
         read_calibration(tmp_path / name)
 
 
+K_TOML = "K = [[1000, 0, 500], [0, 1000, 400], [0, 0, 1]]\n"
+
+
+@pytest.mark.parametrize(
+    ("lines", "message"),
+    [
+        ("dist = [1e10, 0, 0, 0, 0]\n", r"calib.toml: cam1.distortion: 1e\+10 is outside \[-1000, 1000\]"),
+        ("R = [0, 0, 0]\nT = [1e300, 0, 0]\n", r"calib.toml: cam1.T \(its camera centre\): -1e\+300 is outside \[-1e\+08, 1e\+08\] m"),
+        ("size = [1e9, 1080]\n", r"calib.toml: cam1.image_size: 1e\+09 is outside \[1, 100000\] px"),
+    ],
+)
+def test_a_calibration_value_out_of_range_names_the_calibration_file(tmp_path, lines, message):
+    """Refused where it is read, not later against the capture written from it."""
+    from mocapgraph.data_tools.io.calibration import read_calibration
+
+    (tmp_path / "calib.toml").write_text("[cam1]\n" + K_TOML + lines)
+    with pytest.raises(CaptureError, match=message):
+        read_calibration(tmp_path / "calib.toml")
+
+
 def test_a_keypoint_array_with_a_huge_header_is_refused(tmp_path):
     from mocapgraph.data_tools.io.keypoint_files import read_keypoint_array
 

@@ -20,7 +20,8 @@ import numpy as np
 
 from mocapgraph.body.rotations import nearest_rotation, rotvec_to_matrix
 from mocapgraph.data_tools.io.capture import CaptureError, world_T_camera_from_Rt
-from mocapgraph.data_tools.io.checks import parse_json, read_text
+from mocapgraph.data_tools.io.checks import check_limit, parse_json, read_text
+from mocapgraph.data_tools.io.files import Where
 
 log = logging.getLogger(__name__)
 
@@ -308,7 +309,7 @@ def read_calibration(path: str | Path, units: str | None = None) -> list[CameraC
     if kind == "qualisys":
         if units not in (None, "mm"):
             raise CaptureError(f"{path}: Qualisys calibrations are in millimetres and say so; leave out units={units!r}")
-        return _qualisys_cameras(path)
+        return _in_range(_qualisys_cameras(path), path)
     if kind == "filestorage":
         tree = _filestorage_tree(path)
     elif kind == "json":
@@ -324,7 +325,21 @@ def read_calibration(path: str | Path, units: str | None = None) -> list[CameraC
             raise CaptureError(
                 f"{path}: unknown calibration format (not OpenCV YAML/XML, JSON, TOML or Qualisys); see docs/importing.md"
             ) from None
-    return _cameras_from_tree(tree, path, UNITS[units or "m"])
+    return _in_range(_cameras_from_tree(tree, path, UNITS[units or "m"]), path)
+
+
+def _in_range(cameras: list[CameraCalibration], path: Path) -> list[CameraCalibration]:
+    """The cameras, once their numbers lie in the capture format's physical ranges: refused here,
+    naming the calibration file, rather than later against the capture written from it."""
+    for cam in cameras:
+        where = Where(str(path), cam.name, CaptureError)
+        check_limit(cam.K, where("K"), "pixel")
+        check_limit(cam.distortion, where("distortion"), "distortion")
+        if cam.image_size is not None:
+            check_limit(cam.image_size, where("image_size"), "image_size")
+        if cam.world_T_camera is not None:
+            check_limit(cam.world_T_camera[:3, 3], where("T (its camera centre)"), "position")
+    return cameras
 
 
 def intrinsics_only(cameras: Sequence[CameraCalibration]) -> list[CameraCalibration]:
