@@ -1,7 +1,7 @@
 """Property-based fuzzing of the capture and result formats: whatever is done to a valid
 directory (tests/format_mutations.py), the loaders and the commands ``capture info``,
-``run baseline`` and ``eval`` end in a result or in one MocapgraphError (exit 2), never in another
-exception, a hang or unbounded memory.
+``run baseline`` and ``eval`` (and, in the slow suite, ``run smartmocap`` and ``run aircap``) end in
+a result or in one MocapgraphError (exit 2), never in another exception, a hang or unbounded memory.
 
 ``make test`` runs a CI-sized budget (about 10 s); ``make test-all`` (``-m slow``) the long one,
 over 10 000 inputs. Every crasher these found is a regression test in tests/test_bad_inputs.py.
@@ -107,6 +107,27 @@ def check_commands(pristine: Path, draw) -> None:
             assert _command(["eval", res, "--capture", cap]) in (0, 2)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+
+
+def check_pipelines(pristine: Path, draw) -> None:
+    """Damage the capture, then fit it with SmartMocap and AirCap (short settings)."""
+    work = _copy(pristine / "rich")
+    try:
+        note(mutate(work / "rich", "capture.toml", draw))
+        cap = str(work / "rich")
+        with no_hang():
+            argv = ["--motion-prior", "none", "--workers", "1", "--no-covariances"]
+            assert _command(["run", "smartmocap", cap, "--out", str(work / "sm"), *argv]) in (0, 2)
+            assert _command(["run", "aircap", cap, "--out", str(work / "ac"), "--mode", "per-frame", "--no-covariances"]) in (0, 2)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+@pytest.mark.slow  # 0.1-5 s an input: most damaged captures are refused on loading
+@_settings(300)
+@given(data=st.data())
+def test_pipelines(pristine, data):
+    check_pipelines(pristine, data.draw)
 
 
 def _budgeted(examples: tuple[int, int, int], slow: bool):
