@@ -325,11 +325,7 @@ def associate_tracks(
         focal[cam] = float(np.sqrt(K[0, 0] * K[1, 1]))
         seen[cam] = np.isfinite(kp[..., 2]).any(-1)
         height[cam] = track_heights(kp)
-    moving = dict(moving or {})
-
-    def moves(cam: str) -> bool:
-        return bool(moving.get(cam, False))
-
+    moves = {cam for cam, m in (moving or {}).items() if m}
     assoc = Association(cameras, [])
     for ca, cam_a in enumerate(cameras):
         for cam_b in cameras[ca + 1 :]:
@@ -340,7 +336,7 @@ def associate_tracks(
                     if not np.isfinite(threshold_px):
                         continue
                     kw = dict(threshold_px=threshold_px, min_correspondences=min_correspondences, seed=seed)
-                    s = score_moving_pair(a, b, f, swap, window=window, **kw) if moves(cam_a) or moves(cam_b) else score_pair(a, b, f, swap, **kw)
+                    s = score_moving_pair(a, b, f, swap, window=window, **kw) if {cam_a, cam_b} & moves else score_pair(a, b, f, swap, **kw)
                     if s is not None:
                         assoc.scores[(cam_a, i, cam_b, j)] = s
                         log.debug("%s/%d ~ %s/%d: %.2f inliers, median %.1f px, %d swapped frames over %d",

@@ -205,14 +205,14 @@ def track_people(
 
 
 PERSON_RULES = ("largest", "central")
-
-MOVING_WINDOW_S = 0.5
-"""Seconds per window over which tracks of a moving camera are matched to another camera's
-(:func:`~mocapgraph.data_tools.geometry.association.score_moving_pair`)."""
 """How :func:`select_person` picks among the people seen by the most cameras: the tallest in the
 images (mean over the cameras of the median box height over the image height), or the one
 nearest the images' centres (mean distance of the box centre from the image centre over the
 image's half-diagonal). An integer picks by rank instead."""
+
+MOVING_WINDOW_S = 0.5
+"""Seconds per window over which tracks of a moving camera are matched to another camera's
+(:func:`~mocapgraph.data_tools.geometry.association.score_moving_pair`)."""
 
 
 @dataclass
