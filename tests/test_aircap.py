@@ -73,6 +73,7 @@ def test_result_carries_uncertainty_and_flags(variants, capture):
     assert result.log and all("cost_after" in row for row in result.log)
 
 
+@pytest.mark.slow  # 6 s: a whole AirCap sequence run for its flags
 def test_person_out_of_every_view_for_a_while(capture):
     """Detections removed from all cameras for 0.8 s: finite estimates, those states flagged."""
     gap = (1.0, 1.8)

@@ -11,7 +11,7 @@ import pytest
 from people_scene import SWAP, make_scene
 from real_clip import clip_capture
 
-from mocapgraph.data_tools.geometry.association import associate_tracks, normalised_points, score_pair
+from mocapgraph.data_tools.geometry.association import associate_tracks, normalised_points, score_moving_pair, score_pair
 from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
 from mocapgraph.data_tools.geometry.epipolar import sampson_px
 from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_points
@@ -187,7 +187,25 @@ def test_real_clip_capture(clip, lab, tmp_path, intrinsics):
     assert choice.people[0].height > choice.people[1].height
 
 
-@pytest.mark.parametrize("seed", [3, *(pytest.param(s, marks=pytest.mark.slow) for s in (0, 1, 2, 4, 5))])  # 9 s each
+def test_a_moving_pair_pools_its_windows():
+    """24 frames in windows of 10: [0, 10) and [10, 24) (the 4-frame tail, shorter than half a
+    window, joins the last), each scored as a pair of its own, their counts summed and their
+    swapped frames shifted back."""
+    scene = make_scene(1, moving=("cam2",), frames=24, swap_runs={"cam2": (0, 12, 16)})
+    a, b = (normalised_points(scene.tracks[c][list(scene.truth[c]).index(0)], scene.K) for c in ("cam1", "cam2"))
+    kw = dict(threshold_px=15.0, min_correspondences=40, seed=0)
+    pooled = score_moving_pair(a, b, scene.K[0, 0], SWAP, window=10, **kw)
+    parts = [score_pair(a[i:j], b[i:j], scene.K[0, 0], SWAP, **kw) for i, j in ((0, 10), (10, 24))]
+    assert pooled.correspondences == sum(p.correspondences for p in parts) and pooled.inliers == sum(p.inliers for p in parts)
+    assert pooled.swapped_frames == parts[0].swapped_frames + tuple(10 + f for f in parts[1].swapped_frames)
+    assert pooled.swapped_frames == tuple(range(12, 17)) and pooled.inlier_ratio > 0.9  # the simulated swap, the right geometry
+    assert pooled.median_error_px == pytest.approx(float(np.median([p.median_error_px for p in parts])))
+    with pytest.raises(MocapgraphError, match="window: at least 2 frames"):
+        score_moving_pair(a, b, scene.K[0, 0], SWAP, window=1, **kw)
+
+
+@pytest.mark.slow  # 9 s a seed
+@pytest.mark.parametrize("seed", range(6))
 def test_moving_cameras_are_matched_window_by_window(seed):
     """Two of four cameras carried round the people at 1.4 m/s: one geometry over the whole clip
     no longer explains their tracks (seed 3 splits a person in two, measured); a geometry per half

@@ -75,6 +75,7 @@ def test_the_window_stays_bounded(rich):
     assert len(fusion.smoother.timestamps) < 4 * (OPTIONS.lag_s * OPTIONS.rate_hz + 3)
 
 
+@pytest.mark.slow  # 5 s: a stream of its own
 def test_swapped_detection_relabelled_online(rich):
     """One static camera's detection with its legs' labels swapped, after the bootstrap: the
     reprojection factor's mixture takes the legs' relabelling for that frame, and only there."""

@@ -27,6 +27,7 @@ def captures(tmp_path_factory):
     return [write_capture(synthesize("rich", seed=s, duration_s=4.0), root / f"cap{s}") for s in range(3)]
 
 
+@pytest.mark.slow  # 4 s: two batches of real runs, one killed
 def test_a_killed_batch_resumes_from_its_finished_captures_to_the_same_results(captures, tmp_path, capsys):
     reference = tmp_path / "reference"
     assert main(["batch", "baseline", *map(str, captures), "--out", str(reference), "--workers", "1", "-q"]) == 0
