@@ -36,6 +36,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.body.labelling import part_name
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import axis_rotation
+from mocapgraph.data_tools.evaluation.alignment import align_camera_centres
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
@@ -55,6 +56,7 @@ from mocapgraph.graphs.initialisation import (
     view_swaps,
 )
 from mocapgraph.graphs.keypoint_fit import estimate_offsets, outlier_views, reprojection_medians
+from mocapgraph.graphs.point_bundle import StaticRefinement, refine_static_cameras
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.executors import make_executor
@@ -66,6 +68,11 @@ log = logging.getLogger(__name__)
 
 MOTION_PRIORS = ("vae", "none")
 OFFSET_ESTIMATIONS = ("joint", "alternation")
+STATIC_CAMERAS = ("points", "body")
+REFINE_THRESHOLD_PX = 15.0
+"""Inlier threshold of the RANSAC triangulation that starts the static cameras' free points."""
+REFINE_ITERATIONS = 50
+"""Levenberg-Marquardt iterations of that adjustment at most (the generic baseline's)."""
 MOTION_GROUND_SIGMAS = (1e-4, 1e-4)
 """σ (rad, m) of the motion prior's ground at z = 0: SmartMocap's world is the ground plane."""
 
@@ -93,6 +100,12 @@ class SmartmocapOptions:
     offset_iterations: int = 15
     # Views left out, and the sequence solved again, up to this many times while more show up.
     offset_rounds: int = 2
+    # "points": the static cameras adjusted last on free points, as the generic self-calibration
+    # does (graphs.point_bundle), then held while the body is solved once more to them: a
+    # detector's points are not the body's, and free points absorb that where a body cannot.
+    # "body": the static cameras as the body's solve leaves them.
+    static_cameras: str = "points"
+    static_gm_sigma_px: float = 10.0  # Geman-McClure scale of that adjustment
     # Moving cameras' IMU logs (gyroscope and accelerometer, with the capture's mount) as
     # preintegrated factors between their frames (mocapgraph.graphs.camera_imu).
     imu: bool = True
@@ -129,6 +142,10 @@ class SmartmocapOptions:
             raise MocapgraphError(f"offset_estimation {self.offset_estimation!r}: choose one of {', '.join(OFFSET_ESTIMATIONS)}")
         if not (isinstance(self.offset_rounds, int) and self.offset_rounds >= 1):
             raise MocapgraphError(f"offset_rounds: a whole number >= 1, got {self.offset_rounds!r}")
+        if self.static_cameras not in STATIC_CAMERAS:
+            raise MocapgraphError(f"static_cameras {self.static_cameras!r}: choose one of {', '.join(STATIC_CAMERAS)}")
+        if not (isinstance(self.static_gm_sigma_px, (int, float)) and np.isfinite(self.static_gm_sigma_px) and self.static_gm_sigma_px > 0):
+            raise MocapgraphError(f"static_gm_sigma_px: a positive number of pixels, got {self.static_gm_sigma_px!r}")
         if not (isinstance(self.offset_iterations, int) and self.offset_iterations >= 1):
             raise MocapgraphError(f"offset_iterations: a whole number >= 1, got {self.offset_iterations!r}")
         if not (isinstance(self.workers, int) and self.workers >= 1):
@@ -443,6 +460,16 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             notes += [f"{fit.fmt} keypoints: the offsets of {', '.join(options.graph.offset_parts)} points estimated with the body: "
                       + ", ".join(f"{name} {100 * np.linalg.norm(v):.1f} cm" for name, v in fit.as_table().items() if part_name(name) in options.graph.offset_parts)
                       for fit in fits]  # fmt: skip
+    if options.static_cameras == "points":
+        refined = refine_static_cameras(model, estimate, bg.relabelled(estimate), options.static_gm_sigma_px, REFINE_THRESHOLD_PX, REFINE_ITERATIONS)
+        if refined is not None:
+            cameras = aligned_to(refined.cameras, estimate)
+            notes.append(static_refinement_note(model, estimate, refined, cameras))
+            for c, T in cameras.items():
+                estimate.cameras[c] = np.repeat(T[None], len(estimate.cameras[c]), axis=0)
+            bg, graph, solved_final = final_pass(model, body, options, learned, estimate, offsets, options.offset_iterations, imu=imu, hold=tuple(refined.cameras))
+            estimate = bg.read(solved_final.values, estimate)
+            estimate.log += list(solved_final.log)
     labels = bg.relabelled(estimate)
     swaps = combined_swaps(model, before, labels)
     notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + camera_support_notes(bg)
@@ -495,7 +522,7 @@ def _ranges(frames: np.ndarray) -> str:
 
 def final_pass(
     model: StateModel, body: BodyModel, options: SmartmocapOptions, learned: LearnedPriors, start: Estimate, offsets: dict, iterations: int,
-    estimate_offsets: bool = False, imu: dict | None = None,
+    estimate_offsets: bool = False, imu: dict | None = None, hold: tuple[int, ...] = (),
 ):  # fmt: skip
     """The whole sequence solved from ``start`` with the formats' keypoint ``offsets`` (held, or
     the start of their estimate with ``estimate_offsets``) and the cameras' ``imu`` logs: its
@@ -504,10 +531,32 @@ def final_pass(
     bg = BodyGraph(model, body, graph_options, learned=learned, keypoint_offsets=offsets, imu=imu)
     graph, values = sequence_graph(bg, start, options.gauge_sigmas)
     stages = bg.stages(iterations, bg.time_ordering(values))
-    if offsets:
+    if offsets or hold:
         stages = stages[1:]  # from a solved start: robust from the first step
-    solved = solve_staged(held(graph, values, bg.held_keys()), values, stages, progress="smartmocap final", project=bg.project_shape)
+    solved = solve_staged(held(graph, values, bg.held_keys() + [k for k, (c, _) in bg.camera_vars().items() if c in hold]), values, stages, progress="smartmocap final", project=bg.project_shape)
     return bg, graph, solved
+
+
+def aligned_to(cameras: dict[int, np.ndarray], estimate: Estimate) -> dict[int, np.ndarray]:
+    """``cameras`` (index → ``(4, 4)`` world_T_camera, in any frame and scale) moved by the
+    similarity that best maps their centres onto the same cameras' in ``estimate``: the solve's
+    world and metric scale kept, spread over every camera rather than resting on one or two.
+    Fewer than three cameras, or collinear ones, fix no similarity: as given."""
+    try:
+        similarity = align_camera_centres([T[None, :3, 3] for T in cameras.values()], [estimate.cameras[c][:1, :3, 3] for c in cameras])
+    except MocapgraphError:
+        return cameras
+    return {c: similarity.apply_pose(T[None])[0] for c, T in cameras.items()}
+
+
+def static_refinement_note(model: StateModel, estimate: Estimate, refined: StaticRefinement, cameras: dict[int, np.ndarray]) -> str:
+    """What the static cameras' adjustment on free points did: how far it moved each camera
+    (``cameras``, its result in ``estimate``'s world) from where the body's solve had put it."""
+    moved = {model.names[c]: 100 * float(np.linalg.norm(T[:3, 3] - estimate.cameras[c][0, :3, 3])) for c, T in cameras.items()}
+    return (
+        f"static cameras adjusted on {refined.points} free {refined.fmt} points (median {refined.reprojection_px:.1f} px), then held while the body "
+        f"was solved to them; moved {', '.join(f'{n} {cm:.1f} cm' for n, cm in moved.items())}"
+    )
 
 
 def summary(result: Result) -> str:

@@ -36,7 +36,6 @@ import time
 from dataclasses import dataclass
 
 import cv2
-import gtsam
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
@@ -52,12 +51,11 @@ from mocapgraph.data_tools.geometry.epipolar import (
     pair_geometries,
     resolve_swaps,
 )
-from mocapgraph.data_tools.geometry.triangulation import DEFAULT_THRESHOLD_PX, projection_matrix, triangulate_ransac
+from mocapgraph.data_tools.geometry.triangulation import DEFAULT_THRESHOLD_PX
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import CameraTrack, Result, options_parameters
 from mocapgraph.errors import MocapgraphError
-from mocapgraph.factors.keys import camera_key
-from mocapgraph.graphs.solver import SolverOptions, levenberg_marquardt
+from mocapgraph.graphs.point_bundle import MIN_CONFIDENCE, bundle_adjust, reprojection_errors, triangulate_placed
 from mocapgraph.pipelines.observations import capture_state_model, detector_names
 from mocapgraph.pipelines.results import swap_notes
 
@@ -82,15 +80,6 @@ MAX_GROUND_TILT_DEG = 30.0
 
 _GROUND_INLIER_M = 0.05
 _MIN_PNP_POINTS = 12
-_GAUGE_SIGMA = 1e-6
-_RELATIVE_TOLERANCE = 1e-4
-"""The bundle adjustment stops when an iteration lowers the cost by less than this fraction: the
-Geman-McClure tail creeps on for tens of iterations that move the cameras by well under a millimetre."""
-
-
-def point_key(index: int) -> int:
-    """Key of the free 3D point ``index`` (``state · K + keypoint``) of the bundle adjustment."""
-    return gtsam.symbol("l", index)
 
 
 @dataclass
@@ -100,7 +89,7 @@ class UncalibratedOptions:
     height_m: float = 1.75  # the person's standing height assumed for the metric scale
     swap_check: bool = True  # relabel camera-frames whose left/right labels fit the other cameras swapped
     gm_sigma_px: float = 10.0  # Geman-McClure scale of the bundle adjustment
-    min_confidence: float = 0.2  # keypoints below are not used
+    min_confidence: float = MIN_CONFIDENCE  # keypoints below are not used
     max_iterations: int = 50  # of the bundle adjustment
 
     def check(self) -> None:
@@ -196,17 +185,6 @@ def starting_pair(pairs: dict[tuple[int, int], PairGeometry]) -> PairGeometry:
     return max(wide, key=lambda g: g.inliers) if wide else max(pairs.values(), key=lambda g: g.median_angle_deg)
 
 
-def _triangulate(poses: list[np.ndarray | None], x: np.ndarray, w: np.ndarray, Ks: np.ndarray, threshold_px: float, seed: int) -> np.ndarray:
-    """``(N, K, 3)`` points from the placed cameras (RANSAC over views, at least 2 agreeing)."""
-    placed = [c for c, T in enumerate(poses) if T is not None]
-    C, N, K = w.shape
-    P = np.stack([projection_matrix(Ks[c], poses[c]) for c in placed])
-    X, _, _ = triangulate_ransac(
-        P, x[placed].reshape(len(placed), N * K, 2), w[placed].reshape(len(placed), N * K), threshold_px=threshold_px, seed=seed
-    )
-    return X.reshape(N, K, 3)
-
-
 def _pnp(points: np.ndarray, pixels: np.ndarray, K: np.ndarray, threshold_px: float, seed: int) -> tuple[np.ndarray, int] | None:
     """world_T_camera ``(4, 4)`` and its inlier count from 3D–2D correspondences (EPnP in
     RANSAC, then Levenberg-Marquardt on the inliers), or None with too few inliers."""
@@ -241,7 +219,7 @@ def initial_reconstruction(
     a_T_b = np.eye(4)
     a_T_b[:3, :3], a_T_b[:3, 3] = first.R, first.t  # b's coordinates from a's
     poses[first.b] = _invert(a_T_b)
-    points = _triangulate(poses, x, w, Ks, threshold_px, seed)
+    points = triangulate_placed(poses, x, w, Ks, threshold_px, seed)
     while any(T is None for T in poses):
         known = np.isfinite(points).all(-1)
         waiting = [c for c, T in enumerate(poses) if T is None]
@@ -256,70 +234,12 @@ def initial_reconstruction(
             )
         poses[c] = placed[0]
         log.info("uncalibrated baseline: camera %s placed by PnP (%d of %d points agree)", names[c], placed[1], shared[c])
-        points = _triangulate(poses, x, w, Ks, threshold_px, seed)
+        points = triangulate_placed(poses, x, w, Ks, threshold_px, seed)
     return poses, points, (first.a, first.b)
 
 
 # ---------------------------------------------------------------------------------------------
 # Bundle adjustment
-
-
-def bundle_adjust(
-    x: np.ndarray, w: np.ndarray, Ks: np.ndarray, poses: list[np.ndarray], points: np.ndarray, gauge: tuple[int, int], gm_sigma_px: float, max_iterations: int
-) -> tuple[list[np.ndarray], np.ndarray, list[dict]]:
-    """Cameras and free points that minimise the Geman-McClure reprojection error.
-
-    Every known point (finite in ``points``) gets a variable and a projection factor per camera
-    that sees it (``w > 0``), unweighted by confidence (its scale ``gm_sigma_px``: residuals
-    beyond it count less and less). ``gauge = (a, b)``: camera ``a`` held where it is, the
-    distance between ``a`` and ``b`` held at its current value.
-
-    Returns:
-        cameras ``world_T_camera (4, 4)``, points ``(N, K, 3)`` (NaN as given) and the solver's log.
-    """
-    C, N, K = w.shape
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.GemanMcClure.Create(gm_sigma_px), gtsam.noiseModel.Isotropic.Sigma(2, 1.0))
-    calibrations = [gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]) for K in Ks]
-    for c, T in enumerate(poses):
-        values.insert(camera_key(c, 0), gtsam.Pose3(T))
-    known = np.isfinite(points).all(-1)
-    for n, k in zip(*np.nonzero(known)):
-        key = point_key(int(n) * K + int(k))
-        values.insert(key, gtsam.Point3(points[n, k]))
-        for c in np.flatnonzero(w[:, n, k] > 0):
-            graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*x[c, n, k]), noise, camera_key(int(c), 0), key, calibrations[c]))
-    a, b = gauge
-    graph.add(gtsam.PriorFactorPose3(camera_key(a, 0), gtsam.Pose3(poses[a]), gtsam.noiseModel.Isotropic.Sigma(6, _GAUGE_SIGMA)))
-    distance = float(np.linalg.norm(poses[a][:3, 3] - poses[b][:3, 3]))
-    graph.add(gtsam.RangeFactorPose3(camera_key(a, 0), camera_key(b, 0), distance, gtsam.noiseModel.Isotropic.Sigma(1, _GAUGE_SIGMA)))
-    # Points first: each is eliminated onto its few cameras (the Schur complement), leaving a
-    # dense system of the cameras alone.
-    ordering = [point_key(int(n) * K + int(k)) for n, k in zip(*np.nonzero(known))] + [camera_key(c, 0) for c in range(C)]
-    solved = levenberg_marquardt(graph, values, SolverOptions(max_iterations=max_iterations, relative_tolerance=_RELATIVE_TOLERANCE, ordering=ordering), stage="bundle adjustment")
-    log.info(
-        "uncalibrated baseline: bundle adjustment of %d cameras and %d points, cost %.4g -> %.4g in %d iterations (%s)",
-        C, int(known.sum()), solved.initial_error, solved.error, solved.iterations, solved.reason,
-    )  # fmt: skip
-    out_poses = [solved.values.atPose3(camera_key(c, 0)).matrix() for c in range(C)]
-    out_points = np.full_like(points, np.nan)
-    for n, k in zip(*np.nonzero(known)):
-        out_points[n, k] = solved.values.atPoint3(point_key(int(n) * K + int(k)))
-    return out_poses, out_points, solved.log
-
-
-def reprojection_errors(x: np.ndarray, w: np.ndarray, Ks: np.ndarray, poses: list[np.ndarray], points: np.ndarray) -> np.ndarray:
-    """``(C, N, K)`` pixel distance between each used observation and its point's projection (NaN
-    where unused or unknown)."""
-    out = np.full(w.shape, np.nan)
-    for c, T in enumerate(poses):
-        P = projection_matrix(Ks[c], T)
-        h = points @ P[:, :3].T + P[:, 3]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            err = np.linalg.norm(h[..., :2] / h[..., 2:] - x[c], axis=-1)
-        out[c] = np.where(w[c] > 0, err, np.nan)
-    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -519,7 +439,7 @@ def run_uncalibrated_baseline(
             log.info("uncalibrated baseline: the skeleton turned the labels of %d frames", int(np.any(absolute != labels, axis=0).sum()))
             labels = absolute
             x, w = apply_labels(rig.x, labels, names), apply_labels(rig.w, labels, names)
-            points = _triangulate(poses, x, w, rig.Ks, threshold_px, seed)
+            points = triangulate_placed(poses, x, w, rig.Ks, threshold_px, seed)
     poses, points, solve_log = bundle_adjust(x, w, rig.Ks, poses, points, gauge, options.gm_sigma_px, options.max_iterations)
     errors = reprojection_errors(x, w, rig.Ks, poses, points)
     frame = body_frame(points, rig.fmt, options.height_m)
