@@ -176,8 +176,12 @@ def test_command_line(tmp_path, capsys):
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "smartmocap: 31 body states, 8 cameras, 1 chunks" in out and "note: absolute scale" in out
+    assert "note: static cameras adjusted on" in out and "cam7" in out.split("note: static cameras adjusted on")[1]
     assert load_result(tmp_path / "res").world_frame == "ground_plane"
     assert main(["eval", str(tmp_path / "res")]) == 0
     assert "similarity" in capsys.readouterr().out
     assert main(args) == 2  # the result exists: refused without --overwrite
     assert "exists" in capsys.readouterr().err
+    assert main(args + ["--overwrite", "--static-cameras", "body"]) == 0
+    assert "static cameras adjusted" not in capsys.readouterr().out
+    assert load_result(tmp_path / "res").parameters["static_cameras"] == "body"

@@ -69,7 +69,7 @@ def add_parsers(subparsers) -> None:
     from mocapgraph.pipelines.airpose import AirposeOptions
     from mocapgraph.pipelines.baseline import BaselineOptions
     from mocapgraph.pipelines.executors import EXECUTORS
-    from mocapgraph.pipelines.smartmocap import MOTION_PRIORS, SmartmocapOptions
+    from mocapgraph.pipelines.smartmocap import MOTION_PRIORS, STATIC_CAMERAS, SmartmocapOptions
 
     run = group(subparsers, "run", "run a pipeline on a capture", "pipeline")
 
@@ -128,6 +128,7 @@ def add_parsers(subparsers) -> None:
     flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
     flags.add("keypoint_offsets", "no last pass with the detector's keypoint-definition offsets (nor its outlier views left out)")
     flags.add("imu", "leave the moving cameras' IMU logs unused (docs/phone-imu.md)")
+    flags.add("static_cameras", "three or more static cameras: adjusted last on free points (points) or left as the body's solve puts them (body); docs/smartmocap.md", choices=STATIC_CAMERAS)
     flags.add("covariances", "skip the marginal covariances")
     smartmocap.add_argument("--resume", action="store_true", help="after a run that was stopped: keep the chunks it solved, solve the rest")
 
