@@ -34,19 +34,26 @@ class Evaluation:
     per_frame: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def matched_cameras(result: Result, capture: Capture) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per camera with ground-truth poses, its estimated and true ``world_T_camera`` ``(N, 4, 4)``
-    at the result's camera timestamps that lie within half a frame of one of the camera's frames."""
+def matched_frames(result: Result, capture: Capture) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per camera with ground-truth poses: which of the result's camera timestamps lie within half
+    a frame of one of the camera's frames (``(N,)`` bool) and those frames' indices."""
     out = {}
     for name, track in result.cameras.items():
-        truth = capture.ground_truth.cameras.get(name)
-        if truth is None:
+        if name not in capture.ground_truth.cameras:
             continue
         cam = capture.camera(name)
         cidx = match_times(cam.timestamps, track.timestamps, tolerance=0.5 / cam.frame_rate)
-        ok = cidx >= 0
-        out[name] = (track.world_T_camera[ok], truth[cidx[ok]])
+        out[name] = (cidx >= 0, cidx[cidx >= 0])
     return out
+
+
+def matched_cameras(result: Result, capture: Capture) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per camera with ground-truth poses, its estimated and true ``world_T_camera`` ``(N, 4, 4)``
+    at the result's camera timestamps that lie within half a frame of one of the camera's frames."""
+    return {
+        name: (result.cameras[name].world_T_camera[ok], capture.ground_truth.cameras[name][frames])
+        for name, (ok, frames) in matched_frames(result, capture).items()
+    }
 
 
 def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_joints: np.ndarray) -> tuple[Similarity, str]:
@@ -132,14 +139,64 @@ def aligned(result: Result, capture: Capture) -> tuple[Result, str]:
     if per_frame:
         how = "rigid per frame: the reference camera's true pose at each body timestamp"
     moved = replace(result, cameras={n: CameraTrack(t.timestamps, align.apply_pose(t.world_T_camera)) for n, t in result.cameras.items()})
+    moved.covariances = moved_covariances(result.covariances, align)
     moved.joints = align.apply(result.joints)
     moved.keypoints = None if result.keypoints is None else align.apply(result.keypoints)
     moved.root = None if result.root is None else align.apply_pose(result.root)
     return moved, how
 
 
+def moved_covariances(covariances: dict[str, np.ndarray], align: Similarity) -> dict[str, np.ndarray]:
+    """A result's ``covariances`` (docs/result-format.md) under the world map ``align``: points'
+    (``joints``) turned by ``R`` and scaled by ``scale²``; poses' (``root``, ``camera:<name>``,
+    GTSAM's tangent in the pose's own frame, rotation first) keep their rotation block and scale
+    the translation's by ``scale`` per axis; the shape's as it is."""
+    out = dict(covariances)
+    if "joints" in out:
+        out["joints"] = align.scale**2 * np.einsum("ij,...jk,lk->...il", align.R, covariances["joints"], align.R)
+    scale = np.r_[np.ones(3), np.full(3, align.scale)]
+    for key in [k for k in out if k == "root" or k.startswith("camera:")]:
+        out[key] = covariances[key] * np.outer(scale, scale)
+    return out
+
+
+def coverage(result: Result, capture: Capture, level: float = 0.95) -> dict[str, float]:
+    """How honest the result's covariances are: the share of its joints' errors and of its camera
+    centres' errors inside their ``level`` ellipsoids, after the evaluation's alignment
+    (:func:`aligned`, the covariances carried through it): ``{"joints": share, "cameras": share,
+    "cameras.<name>": share}``, each present where the result has those covariances. Honest
+    covariances cover ``level`` of the errors. A result whose world is a camera's at every instant
+    (AirPose's) gives none (its alignment changes from frame to frame)."""
+    if result.world_frame.startswith(PER_FRAME_CAMERA) or not result.covariances:
+        return {}
+    return _coverage(aligned(result, capture)[0], capture, level)
+
+
+def _coverage(moved: Result, capture: Capture, level: float) -> dict[str, float]:
+    """:func:`coverage` of a result already in the capture's world."""
+    out: dict[str, float] = {}
+    if "joints" in moved.covariances:
+        have, sel = matched_truth(moved, capture.ground_truth)
+        out["joints"] = float(M.covariance_coverage(moved.joints[have], capture.ground_truth.joints[sel], moved.covariances["joints"][have], level))
+    inside = []
+    for name, (ok, frames) in matched_frames(moved, capture).items():
+        cov = moved.covariances.get(f"camera:{name}")
+        if cov is None or len(cov) != len(ok) or not ok.any():
+            continue
+        pose = moved.cameras[name].world_T_camera[ok]
+        centre_cov = np.einsum("nij,njk,nlk->nil", pose[:, :3, :3], cov[ok][:, 3:, 3:], pose[:, :3, :3])  # the tangent's translation, in the world
+        share = M.covariance_coverage(pose[None, :, :3, 3], capture.ground_truth.cameras[name][frames][None, :, :3, 3], centre_cov[None], level)
+        out[f"cameras.{name}"] = float(share)
+        inside.append((float(share), int(ok.sum())))
+    if inside:
+        out["cameras"] = sum(share * n for share, n in inside) / sum(n for _, n in inside)
+    return out
+
+
 def evaluate(result: Result, capture: Capture) -> Evaluation:
-    """All metrics that the result's contents allow, against the capture's ground truth."""
+    """All metrics that the result's contents allow, against the capture's ground truth; with
+    covariances, the share of errors inside their 95 % ellipsoids (``coverage95_*``, :func:`coverage`)."""
+    per_frame_world = result.world_frame.startswith(PER_FRAME_CAMERA)
     result, how = aligned(result, capture)
     gt = capture.ground_truth
     have, sel = matched_truth(result, gt)
@@ -204,4 +261,6 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
     if moving_pos:
         out["moving_mcpe_procrustes_m"] = float(M.mcpe_m(np.concatenate(moving_pos), np.concatenate(moving_ref)))
         out["moving_mcoe_procrustes_rad"] = float(M.mcoe_rad(np.concatenate(moving_pos), np.concatenate(moving_ref)))
+    if not per_frame_world:
+        out.update({f"coverage95_{key}": share for key, share in _coverage(result, capture, 0.95).items()})
     return Evaluation(out, how, int(have.sum()), int((~have).sum()), per_frame)
