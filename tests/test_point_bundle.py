@@ -127,3 +127,25 @@ def test_the_estimated_focal_lengths_are_used(rig):
     undone = refine_static_cameras(guessed, estimate, codes, 10.0, 15.0, 50)
     for c in true.cameras:
         np.testing.assert_allclose(undone.cameras[c], true.cameras[c], atol=1e-6)
+
+
+def test_a_camera_with_too_few_points_is_left_as_it_is(rig):
+    """A static camera that sees five keypoints once takes no part (nothing would hold it)."""
+    model, truth = rig
+    first = True
+    states = []
+    for obs in model.states:
+        out = []
+        for o in obs:
+            if o.camera == 1:
+                weights = np.zeros_like(o.weights)
+                if first:
+                    weights[:5], first = o.weights[:5], False
+                o = replace(o, weights=weights)
+            out.append(o)
+        states.append(out)
+    sparse = replace(model, states=states)
+    codes = {c: np.zeros(len(cam.timestamps), dtype=np.int8) for c, cam in enumerate(model.cameras)}
+    refined = refine_static_cameras(sparse, estimate_with(sparse, perturbed(truth, seed=3)), codes, 10.0, 15.0, 50)
+    assert sorted(refined.cameras) == [0, 2, 3]
+    assert np.median(centre_errors_cm(refined.cameras, truth)) < 1.0

@@ -83,7 +83,7 @@ def bundle_adjust(
     ordering = [point_key(int(n) * K + int(k)) for n, k in zip(*np.nonzero(known))] + [camera_key(c, 0) for c in range(C)]
     solved = levenberg_marquardt(graph, values, SolverOptions(max_iterations=max_iterations, relative_tolerance=_RELATIVE_TOLERANCE, ordering=ordering), stage="bundle adjustment")
     log.info(
-        "uncalibrated baseline: bundle adjustment of %d cameras and %d points, cost %.4g -> %.4g in %d iterations (%s)",
+        "bundle adjustment of %d cameras and %d free points, cost %.4g -> %.4g in %d iterations (%s)",
         C, int(known.sum()), solved.initial_error, solved.error, solved.iterations, solved.reason,
     )  # fmt: skip
     out_poses = [solved.values.atPose3(camera_key(c, 0)).matrix() for c in range(C)]
@@ -112,6 +112,8 @@ def reprojection_errors(x: np.ndarray, w: np.ndarray, Ks: np.ndarray, poses: lis
 
 MIN_CONFIDENCE = 0.2
 """Keypoints below this confidence take no part in the free points' adjustment."""
+MIN_POINTS = 12
+"""A static camera needs this many triangulated points of the format adjusted on to take part."""
 MIN_STATIC_CAMERAS = 3
 """Fewer static cameras are not adjusted on free points: two views' points fit any relative pose
 along their epipolar geometry (on ``phones``, 6 s, the second static phone moved 10 cm away from
@@ -147,8 +149,8 @@ def refine_static_cameras(
     static cameras' most observed format are triangulated from ``estimate``'s poses (RANSAC at
     ``threshold_px``) and adjusted with the cameras (:func:`bundle_adjust`, Geman-McClure at
     ``gm_sigma_px``), the focal lengths as estimated. The camera seeing the most keypoints holds
-    the gauge with the one farthest from it. None with fewer than :data:`MIN_STATIC_CAMERAS`
-    static cameras that see the person.
+    the gauge with the one farthest from it. Only static cameras that see :data:`MIN_POINTS` of
+    those points take part; None with fewer than :data:`MIN_STATIC_CAMERAS` of them.
     """
     seen = {o.camera for obs in model.states for o in obs if o.count}
     static = [c for c, cam in enumerate(model.cameras) if not cam.moving and c in seen]
@@ -173,6 +175,13 @@ def refine_static_cameras(
     poses = [estimate.cameras[c][0] for c in static]
     points = triangulate_placed(poses, x, w, Ks, threshold_px, seed)
     seen = (w > 0) & np.isfinite(points).all(-1)[None]
+    # a camera with too few of the format's points would be a variable nothing holds
+    held = seen.sum(axis=(1, 2)) >= MIN_POINTS
+    if held.sum() < MIN_STATIC_CAMERAS:
+        return None
+    if not held.all():
+        static, x, w, Ks, seen = [c for c, h in zip(static, held) if h], x[held], w[held], Ks[held], seen[held]
+        poses = [T for T, h in zip(poses, held) if h]
     a = int(np.argmax(seen.sum(axis=(1, 2))))
     b = int(np.argmax([np.linalg.norm(T[:3, 3] - poses[a][:3, 3]) for T in poses]))
     adjusted, points, _ = bundle_adjust(x, w, Ks, poses, points, (a, b), gm_sigma_px, max_iterations)
