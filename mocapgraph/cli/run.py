@@ -69,6 +69,7 @@ def add_parsers(subparsers) -> None:
     from mocapgraph.pipelines.airpose import AirposeOptions
     from mocapgraph.pipelines.baseline import BaselineOptions
     from mocapgraph.pipelines.executors import EXECUTORS
+    from mocapgraph.pipelines.reference_cameras import SOURCES as CAMERA_SOURCES
     from mocapgraph.pipelines.smartmocap import MOTION_PRIORS, SmartmocapOptions
 
     run = group(subparsers, "run", "run a pipeline on a capture", "pipeline")
@@ -129,6 +130,11 @@ def add_parsers(subparsers) -> None:
     flags.add("keypoint_offsets", "no last pass with the detector's keypoint-definition offsets (nor its outlier views left out)")
     flags.add("imu", "leave the moving cameras' IMU logs unused (docs/phone-imu.md)")
     flags.add("covariances", "skip the marginal covariances")
+    flags.add(
+        "cameras_from", "moving cameras' tracks (their motion between registered frames) from the capture's reference reconstruction "
+        "(`mocapgraph colmap`), scaled onto a first solution", choices=CAMERA_SOURCES,
+    )  # fmt: skip
+    flags.add("camera_reference", "with --cameras-from: the reference's name (its folder under CAPTURE/references/)", flag="--reference")
     smartmocap.add_argument("--resume", action="store_true", help="after a run that was stopped: keep the chunks it solved, solve the rest")
 
     for parser in (baseline, aircap, airpose, smartmocap):
