@@ -145,8 +145,9 @@ class ReferenceTracks:
 
 
 def reference_tracks(reference: ColmapReference, model: StateModel, estimate: Estimate, sigmas: tuple[float, float]) -> tuple[ReferenceTracks, list[str]]:
-    """The reference's moving-camera tracks mapped into ``estimate``'s world (the module
-    docstring's steps 1 and 2's poses) and one note per camera saying how many frames use it."""
+    """The reference's moving-camera tracks mapped into the world of ``estimate`` (the first
+    solution; the module docstring's step 1), and per moving camera a note on how many of its
+    frames use the reference, or why none do."""
     solved = {}
     for c, name in enumerate(model.names):
         frames = model.camera_frames(c)
@@ -168,8 +169,9 @@ def reference_tracks(reference: ColmapReference, model: StateModel, estimate: Es
         own = model.camera_frames(c)
         registered = own[_finite(reference.cameras[name][own])]
         if g not in similarities or len(registered) < 2:
-            why = "fewer than 2 of its frames registered" if len(registered) < 2 else f"COLMAP's model {g} could not be aligned to the first solution"
-            notes.append(f"camera {name}: {why} in the reference {reference.name!r}; its poses rest on the pipeline's own terms")
+            why = (f"{len(registered)} of its frames registered in the reference {reference.name!r}" if len(registered) < 2 else
+                   f"its COLMAP model ({g}) spreads less than {MIN_SPREAD_M} m in the first solution, too little for a scale")  # fmt: skip
+            notes.append(f"camera {name}: {why}; its poses rest on the pipeline's own terms")
             continue
         S = similarities[g]
         frames_out[c] = registered
