@@ -32,10 +32,11 @@ BENCHES = {
         {"lag_s": ("smoother window, seconds", {"flag": "--lag"}), "long_s": ("instead: one stream this long (e.g. 600), memory and latency per minute", {"flag": "--long"})},
     ),
     "colmap": (
-        "COLMAP on rendered phones and rich captures: registration, its error against the truth, SmartMocap's cameras against COLMAP and the truth",
+        "COLMAP on rendered phones and rich captures: registration, its error against the truth, SmartMocap's cameras (on its own and "
+        "with --cameras-from colmap) against COLMAP and the truth",
         "mocapgraph.benchmarks.colmap:bench_colmap",
         {"image_scale": ("image size relative to the presets' 1920x1080", {}), "frame_step": ("reconstruct every N-th frame", {}),
-         "workers": ("parallel chunks", {})},
+         "workers": ("parallel chunks", {}), "presets": ("comma-separated: phones, rich", {})},
     ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (

@@ -69,6 +69,7 @@ def add_parsers(subparsers) -> None:
     from mocapgraph.pipelines.airpose import AirposeOptions
     from mocapgraph.pipelines.baseline import BaselineOptions
     from mocapgraph.pipelines.executors import EXECUTORS
+    from mocapgraph.pipelines.reference_cameras import SOURCES as CAMERA_SOURCES
     from mocapgraph.pipelines.smartmocap import MOTION_PRIORS, STATIC_CAMERAS, SmartmocapOptions
 
     run = group(subparsers, "run", "run a pipeline on a capture", "pipeline")
@@ -130,6 +131,11 @@ def add_parsers(subparsers) -> None:
     flags.add("imu", "leave the moving cameras' IMU logs unused (docs/phone-imu.md)")
     flags.add("static_cameras", "three or more static cameras: adjusted last on free points (points) or left as the body's solve puts them (body); docs/smartmocap.md", choices=STATIC_CAMERAS)
     flags.add("covariances", "skip the marginal covariances")
+    flags.add(
+        "cameras_from", "moving cameras' tracks (their motion between registered frames) from the capture's reference reconstruction "
+        "(`mocapgraph colmap`), scaled onto a first solution", choices=CAMERA_SOURCES,
+    )  # fmt: skip
+    flags.add("camera_reference", "with --cameras-from: the reference's name (its folder under CAPTURE/references/)", flag="--reference")
     smartmocap.add_argument("--resume", action="store_true", help="after a run that was stopped: keep the chunks it solved, solve the rest")
 
     for parser in (baseline, aircap, airpose, smartmocap):

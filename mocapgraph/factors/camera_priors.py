@@ -60,3 +60,29 @@ def camera_offset_prior_factor(
     """
     prior = pose3(world_T_camera_prior, "world_T_camera_prior")
     return gtsam.BetweenFactorPose3(offset_key, key, prior, robust_pose_noise(covariance, sigmas, kernel, k))
+
+
+def camera_motion_prior_factor(
+    key_a: int,
+    key_b: int,
+    a_T_b,
+    *,
+    sigmas,
+    kernel: str = "huber",
+    k: float | None = None,
+) -> gtsam.BetweenFactorPose3:
+    """Prior on a camera's motion between two of its frames: ``inv(world_T_a) · world_T_b ≈ a_T_b``.
+
+    A reconstruction of the background (COLMAP) knows a camera's track up to a similarity of its
+    world: the motion between two frames, in the first frame's axes, depends on that world's
+    scale only, not on its orientation or origin. Once ``a_T_b``'s translation is in metres, the
+    prior holds the track's shape and leaves its placement to the other factors.
+
+    Args:
+        key_a, key_b: the camera's ``Pose3`` keys at the two frames.
+        a_T_b: ``(4, 4)`` the motion, translation in metres.
+        sigmas: ``(6,)`` or ``(sigma_rot rad, sigma_pos m)``, rotation first.
+        kernel, k: as :func:`camera_prior_factor` (a frame the reconstruction got wrong is an outlier).
+    """
+    motion = pose3(a_T_b, "a_T_b")
+    return gtsam.BetweenFactorPose3(key_a, key_b, motion, robust_pose_noise(None, sigmas, kernel, k))

@@ -42,6 +42,9 @@ MANIFEST = "reference.toml"
 MASK_MARGIN = 0.15
 """The person's box grows by this fraction of its size on every side before it is masked."""
 MASK_MARGIN_PX = 8
+PARALLAX_CONFIGS = ("CALIBRATED", "UNCALIBRATED")
+"""COLMAP's two-view configurations of a pair with a baseline to triangulate from (the others: a
+plane's homography, a pure rotation, degenerate)."""
 
 
 class ReferenceError(MocapgraphError):
@@ -340,6 +343,7 @@ def _reconstruct_in(pycolmap, capture, videos: dict[str, Path], options: ColmapO
     log.info("colmap: matching %d image pairs", len(pairs))
     pycolmap.match_image_pairs(database, matching_options=matching, pairing_options=pairing, verification_options=verification, device=pycolmap.Device.cpu)
     seconds["matching"] = time.perf_counter() - start
+    diagnosis = _match_diagnosis(pycolmap, database, cameras)
 
     start = time.perf_counter()
     mapping = pycolmap.IncrementalPipelineOptions()
@@ -365,12 +369,47 @@ def _reconstruct_in(pycolmap, capture, videos: dict[str, Path], options: ColmapO
             "too few matches between frames (blank, featureless or too different views)"
         )
     ranked = sorted(reconstructions.values(), key=lambda r: r.num_reg_images(), reverse=True)
-    return _reference_from(ranked, capture, cameras, frames, options, name, seconds, total)
+    return _reference_from(ranked, capture, cameras, frames, options, name, seconds, total, diagnosis)
 
 
-def _reference_from(ranked, capture, cameras, frames, options, name, seconds, total) -> ColmapReference:
+def _match_diagnosis(pycolmap, database: Path, cameras: list[str]) -> dict[str, dict]:
+    """Per camera, from the pairs COLMAP verified: ``own_pairs`` of its own frames, ``own_parallax``
+    of those with a baseline (:data:`PARALLAX_CONFIGS`), ``cross_inliers`` the most inlier matches
+    of one of its frames with another camera's."""
+    db = pycolmap.Database.open(str(database))
+    try:
+        owner = {image.image_id: image.name.split("/")[0] for image in db.read_all_images()}
+        pair_ids, geometries = db.read_two_view_geometries()
+    finally:
+        db.close()
+    out = {c: {"own_pairs": 0, "own_parallax": 0, "cross_inliers": 0} for c in cameras}
+    for pair, geometry in zip(pair_ids, geometries):
+        a, b = (owner[i] for i in pycolmap.pair_id_to_image_pair(pair))
+        if a == b:
+            out[a]["own_pairs"] += 1
+            out[a]["own_parallax"] += pycolmap.TwoViewGeometryConfiguration(geometry.config).name in PARALLAX_CONFIGS
+        else:
+            for c in (a, b):
+                out[c]["cross_inliers"] = max(out[c]["cross_inliers"], len(geometry.inlier_matches))
+    return out
+
+
+def _why_unregistered(d: dict) -> str:
+    """Why a camera registered nowhere, from its :func:`_match_diagnosis`."""
+    why = []
+    if d["own_pairs"] and not d["own_parallax"]:
+        why.append(f"its own frames show no parallax (COLMAP verified all {d['own_pairs']} pairs of them as a plane or a pure rotation: "
+                   "a static or turning camera cannot triangulate on its own)")  # fmt: skip
+    elif not d["own_pairs"]:
+        why.append("no two of its own frames matched")
+    why.append(f"with the other cameras' frames at most {d['cross_inliers']} inlier matches (their views share too little background)")
+    return "; ".join(why)
+
+
+def _reference_from(ranked, capture, cameras, frames, options, name, seconds, total, diagnosis) -> ColmapReference:
     """The reference from COLMAP's models ``ranked`` largest first: each camera's track comes from
-    the model holding most of its frames (model 0 for every camera COLMAP connected)."""
+    the model holding most of its frames (model 0 for every camera COLMAP connected); a camera
+    registered nowhere is explained by its :func:`_match_diagnosis` entry."""
     sampled = {c: np.zeros(capture.camera(c).num_frames, bool) for c in cameras}
     for c in cameras:
         sampled[c][frames[c]] = True
@@ -397,7 +436,7 @@ def _reference_from(ranked, capture, cameras, frames, options, name, seconds, to
             "registration_rate": float(done.sum() / max(1, sampled[c].sum())), "model": chosen[c] if done.any() else -1,
         }  # fmt: skip
         if not done.any():
-            failures.append(f"camera {c}: none of its {len(missing)} sampled frames registered (too few matches with other frames)")
+            failures.append(f"camera {c}: none of its {len(missing)} sampled frames registered: {_why_unregistered(diagnosis[c])}")
             continue
         if chosen[c] > 0:
             failures.append(
@@ -424,6 +463,8 @@ def _reference_from(ranked, capture, cameras, frames, options, name, seconds, to
         "seconds_per_frame": float((seconds["extraction"] + seconds["matching"] + seconds["mapping"]) / max(1, total)),
         "cameras": per_camera,
     }
+    for c in cameras:
+        per_camera[c].update(diagnosis[c])
     opts = {k: getattr(options, k) for k in ColmapOptions.__dataclass_fields__}
     return ColmapReference(name, poses, sampled, xyz, errors, tracks, stats, failures, opts)
 
