@@ -77,10 +77,11 @@ from mocapgraph.factors.camera_priors import camera_offset_prior_factor, camera_
 from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key, pose_key, root_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
-from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_velocity_factor, root_smoothness_factor
+from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_velocity_factor, root_smoothness_factor
 from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
 from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation, UpdateReport
 from mocapgraph.graphs.initialisation import resect
+from mocapgraph.graphs.keypoint_fit import offsets_from_table
 from mocapgraph.graphs.navigation import OnlineNoise, online_track
 from mocapgraph.graphs.state_model import Estimate, undistorted_keypoints
 from mocapgraph.priors.gmm_factor import pose_gmm_factor
@@ -132,6 +133,9 @@ class OnlineOptions:
     # the first states' root orientation come out better (rich 10 s: RA-MPJPE 61 -> 41 mm, MPJPE
     # 32 -> 27 mm) for 0.6 s more of bootstrap
     bootstrap_motion_prior: str = "vae"
+    # The detector formats' keypoint-definition offsets estimated by the bootstrap's batch solve
+    # (uncalibrated rigs, as offline) and held: a systematic error no window can average out
+    bootstrap_keypoint_offsets: bool = True
     # The pose GMM and joint-rotation smoothness of 3 rad/s (offline: 6) keep iSAM2's undamped
     # Gauss-Newton out of the directions keypoints barely see (collars, shoulder twist): without
     # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
@@ -140,7 +144,7 @@ class OnlineOptions:
     # 267 relabellings not in the truth, RA-MPJPE 0.19 -> 0.11 m without; docs/online.md), nor
     # in the AirCap bootstrap's batch solve, where the UAV cameras are held (held_body_swaps).
     graph: GraphOptions = field(
-        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False, held_body_swaps=False)
+        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False, held_body_swaps=False, camera_sigma_m_s2=4.0)
     )
 
     def check(self) -> None:
@@ -292,6 +296,7 @@ class _Frame:
     time: float
     labellings: list[Labelling] = field(default_factory=list)
     no_prior: bool = False  # a UAV camera's frame without its onboard estimate
+    tied: bool = False  # a variable tied by smoothness to the camera's previous frame in the window
 
 
 class OnlineFusion:
@@ -327,6 +332,7 @@ class OnlineFusion:
         self.smoother = self._new_smoother()
         self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
         self._caches: dict[str, ShapeTableCache] = {}
+        self._keypoint_offsets: dict[str, np.ndarray] = {}  # by detector format, (K, 3): the bootstrap's
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
         self._buffer: list[StreamFrame] = []
         self._bootstrapped = False
@@ -497,11 +503,13 @@ class OnlineFusion:
             result = run_aircap(mini, options)
         else:
             options = SmartmocapOptions(
-                motion_prior=o.bootstrap_motion_prior, keypoint_offsets=False, covariances=False, workers=1, detectors=detectors,
+                motion_prior=o.bootstrap_motion_prior, keypoint_offsets=o.bootstrap_keypoint_offsets, covariances=False, workers=1, detectors=detectors,
                 graph=replace(SmartmocapOptions().graph, focal="fixed", swaps=o.graph.swaps),
             )  # fmt: skip
             result = run_smartmocap(mini, options)
         self.shape = np.asarray(result.shape, dtype=float)
+        self._keypoint_offsets = {fmt: offsets_from_table(fmt, table) for fmt, table in result.parameters.get("keypoint_offsets_m", {}).items()}
+        self._caches.clear()
         self.world_frame = result.world_frame
         n = int(math.floor((self._buffer[-1].timestamp - self.t0) / self.period + _SNAP)) + 2
         grid = self.t0 + self.period * np.arange(n)
@@ -578,7 +586,7 @@ class OnlineFusion:
 
     def _cache(self, fmt: str) -> ShapeTableCache:
         if fmt not in self._caches:
-            self._caches[fmt] = ShapeTableCache(self.body, fmt)
+            self._caches[fmt] = ShapeTableCache(self.body, fmt, offsets=self._keypoint_offsets.get(fmt))
         return self._caches[fmt]
 
     def _body_at(self, i: int, a: float) -> tuple[np.ndarray, np.ndarray]:
@@ -700,7 +708,13 @@ class OnlineFusion:
             return frames[t]
         key = camera_key(c, int(self._frame_count[c] % CAMERA_STRIDE))
         self._frame_count[c] += 1
+        tied = previous is not None and previous.key is not None and self._in_window(previous.key)
+        before = max((f for f in frames.values() if f.time < previous.time), key=lambda f: f.time, default=None) if tied and previous.tied else None
         start = seed if seed is not None else prior[0] if prior is not None else previous.pose
+        if seed is None and prior is None and before is not None:
+            # the centre at constant velocity: each factor is linearised where its variables start
+            start = previous.pose.copy()
+            start[:3, 3] += (previous.pose[:3, 3] - before.pose[:3, 3]) * (t - previous.time) / (previous.time - before.time)
         self._pending_values.insert(key, gtsam.Pose3(start))
         self._pending_stamps[key] = t
         if prior is not None:
@@ -713,11 +727,17 @@ class OnlineFusion:
                 self._pending_stamps[offset] = t
                 self._offsets.add(offset)
             self._pending.add(camera_offset_prior_factor(offset, key, prior[0], prior[1] * o.camera_prior_white_fraction**2, kernel=o.camera_prior_kernel))
-        if previous is not None and previous.key is not None and (self.smoother.holds(previous.key) or self._pending_values.exists(previous.key)):
+        if tied:
             dt = max(t - previous.time, 1e-3)
             self._pending.add(camera_smoothness_factor(previous.key, key, dt, o.graph.camera_sigma_rad_s, o.graph.camera_sigma_m_s))
-        frames[t] = _Frame(key, start, t)
+        if before is not None and o.graph.camera_sigma_m_s2 is not None and self._in_window(before.key):
+            self._pending.add(camera_acceleration_factor([before.key, previous.key, key], [before.time, previous.time, t], o.graph.camera_sigma_m_s2))
+        frames[t] = _Frame(key, start, t, tied=tied)
         return frames[t]
+
+    def _in_window(self, key: int) -> bool:
+        """Whether ``key`` is a variable of the window or of the update being gathered."""
+        return self.smoother.holds(key) or self._pending_values.exists(key)
 
     def _join(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None) -> _Frame | None:
         """A static camera of an uncalibrated rig that the bootstrap did not see: its first
@@ -821,8 +841,12 @@ class OnlineFusion:
         labelling = None
         if o.swaps:
             allowed = np.ones((1, len(SWAP_KINDS)), dtype=bool)
-            # a whole-body relabelling of a moving camera only where a prior pins its pose
-            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap")
+            # A whole-body relabelling of a moving camera only where something holds its pose on
+            # the person's side: a prior (AirCap, moving_body_swaps), or an uncalibrated camera's
+            # previous frame, which its variable starts at and is tied to: the hypotheses are
+            # decided there. Without it the handheld camera of rich went round the person for
+            # each of its detector's whole-body flips (3 m off for 0.7 s, 10 s capture).
+            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap") or (self.kind == "smartmocap" and view.tied)
             labelling = Labelling(swap_hypotheses(self.body, fmt), 0.5 * o.swap_cost_sigmas**2, allowed=allowed)
             view.labellings.append(labelling)
         between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": a} if a else {}
