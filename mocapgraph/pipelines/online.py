@@ -7,8 +7,9 @@ a time with :meth:`OnlineFusion.update` ``(camera, timestamp, keypoints, box, se
 interleaved between cameras in time order. The graph is the offline one (:mod:`mocapgraph.graphs`):
 body states on a regular time grid, every detection explained at its own timestamp by the state
 interpolated between its two neighbours, the native reprojection factor with its left/right-swap
-max-mixture and per-keypoint Geman-McClure, root and joint-rotation smoothness, the weak pose
-regulariser, and camera variables:
+max-mixture and per-keypoint Geman-McClure, root and joint-rotation smoothness (on uncalibrated
+rigs the joint rotations' constant velocity too: what a state's later neighbours correct it by), the
+weak pose regulariser, and camera variables:
 
 - **AirCap rigs** (cameras on vehicles with a mount and sensor logs): a pose per camera frame near
   the vehicle's onboard estimate at that time (the ``self_pose`` samples received so far, through
@@ -17,7 +18,8 @@ regulariser, and camera variables:
   constant-pose smoothness between its frames (``cameras="refine"``); or held at that estimate
   (``"prior"``). A static camera with a calibration is held at it.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable for the whole stream, a
-  moving one a pose per frame tied by smoothness; the world is SmartMocap's ground plane.
+  moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
+  SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held.
 
 **Bootstrap.** The first ``bootstrap_s`` seconds are buffered and solved in batch by the pipeline
 the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mode with the
@@ -48,7 +50,8 @@ throws (GTSAM's indeterminant-system error, ...) restarts the window from the tr
 **Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
 after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
 created inside a gap keeps its prediction. The *smoothed* one holds each state at its last
-estimate before it left the window (the smoother's lag). ``docs/online.md`` has the numbers.
+estimate before it left the window (the smoother's lag). Both hold every camera (a held one at the
+pose its frames were explained with). ``docs/online.md`` has the numbers.
 """
 
 from __future__ import annotations
@@ -119,15 +122,15 @@ class OnlineOptions:
     # Constant-velocity priors over three consecutive states (None: off), beside the velocity
     # ones of ``graph``: a state's next neighbours then correct it while it is in the window, the
     # smoothed trajectory's gain over the filtered one. Without them each state of a synchronised
-    # rig was fixed by its own frame and stayed where first estimated (rich 6 s, states after the
-    # bootstrap: smoothed MPJPE 20.8 against filtered 21.0 mm, acceleration error 15 against 16
-    # m/s^2; with the joint rotations' at 20 rad/s^2: 20.0 against 20.4 mm, 8.7 against 12.5). The
-    # root's (5 m/s^2) added little on rich (19.9 mm, 7.3 m/s^2) and cost aircap's articulation
-    # (6 s, smoothed RA-MPJPE 0.100 -> 0.136 m: the root no longer follows the onboard cameras'
-    # jitter), so it is off. "rig": the joint rotations' on uncalibrated rigs only; on aircap (10 s)
-    # it took smoothed MPJPE 0.56 -> 0.38 m on seed 1 but 0.45 -> 0.52 on seed 0 (a body turned
-    # round for a second at 6-7 s either way) and 1.1x -> 1.3x the error without a UAV's onboard
-    # estimate for 2 s (40 rad/s^2 there: the body lost), so not on aircap for now.
+    # rig stayed about where its own frame put it (rich 6 s: smoothed MPJPE 20.8 against filtered
+    # 21.0 mm after the bootstrap, acceleration error 15 against 16 m/s^2; with the joint
+    # rotations' at 20 rad/s^2: 20.0 against 20.4 mm, 8.7 against 12.5 m/s^2; docs/online.md).
+    # The root's (5 m/s^2) added little on rich (19.9 mm, 7.3 m/s^2) and cost aircap's
+    # articulation (6 s, smoothed RA-MPJPE 0.100 -> 0.146 m), so it is off. "rig": the joint
+    # rotations' on uncalibrated rigs only; on aircap (10 s) it took smoothed MPJPE 0.56 -> 0.38 m
+    # on seed 1 but 0.45 -> 0.52 on seed 0 (a body turned round for a second at 6-7 s either way)
+    # and 1.1x -> 1.3x the error without a UAV's onboard estimate for 2 s (40 rad/s^2 there: the
+    # body lost), so not on aircap for now.
     root_sigma_m_s2: float | None = None
     pose_sigma_rad_s2: float | None | str = "rig"
     gate_margin: float = 1.0
