@@ -17,7 +17,7 @@ from mocapgraph.body.skeleton import JOINT_NAMES
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import focal_key
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions
-from mocapgraph.graphs.keypoint_fit import PRIOR_FRAMES, estimate_offsets, outlier_views, reprojection_medians
+from mocapgraph.graphs.keypoint_fit import PRIOR_FRAMES, estimate_offsets, offsets_from_table, outlier_views, reprojection_medians
 from mocapgraph.graphs.solver import SolverOptions, held, levenberg_marquardt
 from mocapgraph.graphs.state_model import CameraDetections, CameraInfo, Estimate, build_state_model
 
@@ -131,6 +131,8 @@ def test_offsets_recovered_from_exact_views(body):
     np.testing.assert_allclose(fit.offsets, known_offsets() * n / (n + PRIOR_FRAMES), atol=1e-6)
     assert fit.dropped == []
     assert set(fit.as_table()) == {f"{s}_{p}" for s in ("left", "right") for p in ("hip", "shoulder", "ankle")}
+    # a result's table (as the online loop reads its bootstrap's) gives the offsets back, to its 0.1 mm rounding
+    np.testing.assert_allclose(offsets_from_table(FMT, fit.as_table()), fit.offsets, atol=0.5e-4 + 1e-12)
 
 
 def test_offsets_estimated_with_the_body(body):

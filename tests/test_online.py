@@ -8,7 +8,8 @@ import pytest
 
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
-from mocapgraph.data_tools.evaluation.evaluate import evaluate
+from mocapgraph.data_tools.evaluation import metrics as M
+from mocapgraph.data_tools.evaluation.evaluate import aligned, evaluate, matched_truth
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.pipelines.online import OnlineFusion, OnlineOptions, StreamFrame, run_online, static_rig, stream
@@ -37,6 +38,28 @@ def test_smoothed_and_filtered_trajectories_against_truth(rich, rich_run):
     assert rich_run.smoothed.flags["bootstrap"][0] and not rich_run.smoothed.flags["bootstrap"][-1]
     s = rich_run.stats.summary()
     assert s["late_dropped"] == 0 and s["used"] > 0.9 * s["observations"]
+
+
+def _after_bootstrap(result, capture) -> tuple[float, float]:
+    """MPJPE (m) and acceleration error (m/s^2) of the states after the bootstrap (the result
+    aligned to the truth as ``mocapgraph eval`` does)."""
+    moved, _ = aligned(result, capture)
+    have, sel = matched_truth(moved, capture.ground_truth)
+    keep = ~moved.flags["bootstrap"][have]
+    est, ref = moved.joints[have][keep], capture.ground_truth.joints[sel][keep]
+    return float(M.mpjpe_m(est, ref)), float(M.acceleration_error_m_s2(est, ref, OPTIONS.rate_hz))
+
+
+def test_smoothed_more_accurate_than_filtered(rich, rich_run):
+    """A state keeps being corrected while it is in the window (its later neighbours' frames
+    reach it through the constant-velocity priors): against the truth, the smoothed states are
+    closer and far less jittery than the same states as first estimated. Before those priors each
+    state of this synchronised rig stayed where its own frame put it (smoothed MPJPE 0.99x the
+    filtered one, acceleration error 0.92x); measured now 0.95x and 0.73x."""
+    smoothed_mpjpe, smoothed_accel = _after_bootstrap(rich_run.smoothed, rich)
+    filtered_mpjpe, filtered_accel = _after_bootstrap(rich_run.filtered, rich)
+    assert smoothed_mpjpe < 0.97 * filtered_mpjpe
+    assert smoothed_accel < 0.85 * filtered_accel
 
 
 def _feed(fusion, frames):

@@ -25,7 +25,7 @@ from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.graphs.fixed_lag import Relinearisation
 from mocapgraph.pipelines.online import OnlineFusion, OnlineOptions, run_online, static_rig, stream
 
-REPORTED = ("mpjpe_m", "ra_mpjpe_m", "mcpe_m")
+REPORTED = ("mpjpe_m", "ra_mpjpe_m", "mcpe_m", "static_mcpe_m", "moving_mcpe_m")
 POLICIES = {
     "off": Relinearisation(enabled=False),
     "threshold_0.1_skip_10": Relinearisation(0.1, 10),

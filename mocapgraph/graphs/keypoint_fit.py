@@ -70,6 +70,16 @@ class OffsetFit:
         return {names[k]: [float(v) for v in rounded[k]] for k in np.flatnonzero(np.any(rounded != 0, axis=1))}
 
 
+def offsets_from_table(fmt: str, table: dict[str, list[float]]) -> np.ndarray:
+    """``(K, 3)`` metres: the offsets of format ``fmt`` from :meth:`OffsetFit.as_table`'s
+    ``{point: [x, y, z]}`` (a result's ``keypoint_offsets_m[fmt]``; unnamed points zero)."""
+    names = _names(fmt)
+    out = np.zeros((len(names), 3))
+    for name, value in table.items():
+        out[names.index(name)] = value
+    return out
+
+
 def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt: str) -> OffsetFit:
     """The offsets of format ``fmt``'s points from the body's, at the solve ``estimate`` of ``model``
     (its observations as the solve labelled them): see the module docstring."""

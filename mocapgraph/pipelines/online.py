@@ -7,8 +7,9 @@ a time with :meth:`OnlineFusion.update` ``(camera, timestamp, keypoints, box, se
 interleaved between cameras in time order. The graph is the offline one (:mod:`mocapgraph.graphs`):
 body states on a regular time grid, every detection explained at its own timestamp by the state
 interpolated between its two neighbours, the native reprojection factor with its left/right-swap
-max-mixture and per-keypoint Geman-McClure, root and joint-rotation smoothness, the weak pose
-regulariser, and camera variables:
+max-mixture and per-keypoint Geman-McClure, root and joint-rotation smoothness (on uncalibrated
+rigs the joint rotations' constant velocity too: what a state's later neighbours correct it by), the
+weak pose regulariser, and camera variables:
 
 - **AirCap rigs** (cameras on vehicles with a mount and sensor logs): a pose per camera frame near
   the vehicle's onboard estimate at that time (the ``self_pose`` samples received so far, through
@@ -17,7 +18,8 @@ regulariser, and camera variables:
   constant-pose smoothness between its frames (``cameras="refine"``); or held at that estimate
   (``"prior"``). A static camera with a calibration is held at it.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable for the whole stream, a
-  moving one a pose per frame tied by smoothness; the world is SmartMocap's ground plane.
+  moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
+  SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held.
 
 **Bootstrap.** The first ``bootstrap_s`` seconds are buffered and solved in batch by the pipeline
 the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mode with the
@@ -48,7 +50,8 @@ throws (GTSAM's indeterminant-system error, ...) restarts the window from the tr
 **Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
 after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
 created inside a gap keeps its prediction. The *smoothed* one holds each state at its last
-estimate before it left the window (the smoother's lag). ``docs/online.md`` has the numbers.
+estimate before it left the window (the smoother's lag). Both hold every camera (a held one at the
+pose its frames were explained with). ``docs/online.md`` has the numbers.
 """
 
 from __future__ import annotations
@@ -77,10 +80,11 @@ from mocapgraph.factors.camera_priors import camera_offset_prior_factor, camera_
 from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key, pose_key, root_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
-from mocapgraph.factors.smoothness import camera_smoothness_factor, pose_velocity_factor, root_smoothness_factor
+from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
 from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
 from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation, UpdateReport
 from mocapgraph.graphs.initialisation import resect
+from mocapgraph.graphs.keypoint_fit import offsets_from_table
 from mocapgraph.graphs.navigation import OnlineNoise, online_track
 from mocapgraph.graphs.state_model import Estimate, undistorted_keypoints
 from mocapgraph.priors.gmm_factor import pose_gmm_factor
@@ -115,6 +119,20 @@ class OnlineOptions:
     # No relinearisation: with the pose GMM and the re-acquisition it changed no error measured
     # (rich, aircap, a person out of view) and was the p95 (docs/online.md)
     relinearisation: Relinearisation = field(default_factory=lambda: Relinearisation(enabled=False))
+    # Constant-velocity priors over three consecutive states (None: off), beside the velocity
+    # ones of ``graph``: a state's next neighbours then correct it while it is in the window, the
+    # smoothed trajectory's gain over the filtered one. Without them each state of a synchronised
+    # rig stayed about where its own frame put it (rich 6 s: smoothed MPJPE 20.8 against filtered
+    # 21.0 mm after the bootstrap, acceleration error 15 against 16 m/s^2; with the joint
+    # rotations' at 20 rad/s^2: 20.0 against 20.4 mm, 8.7 against 12.5 m/s^2; docs/online.md).
+    # The root's (5 m/s^2) added little on rich (19.9 mm, 7.3 m/s^2) and cost aircap's
+    # articulation (6 s, smoothed RA-MPJPE 0.100 -> 0.146 m), so it is off. "rig": the joint
+    # rotations' on uncalibrated rigs only; on aircap (10 s) it took smoothed MPJPE 0.56 -> 0.38 m
+    # on seed 1 but 0.45 -> 0.52 on seed 0 (a body turned round for a second at 6-7 s either way)
+    # and 1.1x -> 1.3x the error without a UAV's onboard estimate for 2 s (40 rad/s^2 there: the
+    # body lost), so not on aircap for now.
+    root_sigma_m_s2: float | None = None
+    pose_sigma_rad_s2: float | None | str = "rig"
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
     gate_reacquire: int = 10
@@ -132,6 +150,9 @@ class OnlineOptions:
     # the first states' root orientation come out better (rich 10 s: RA-MPJPE 61 -> 41 mm, MPJPE
     # 32 -> 27 mm) for 0.6 s more of bootstrap
     bootstrap_motion_prior: str = "vae"
+    # The detector formats' keypoint-definition offsets estimated by the bootstrap's batch solve
+    # (uncalibrated rigs, as offline) and held: a systematic error no window can average out
+    bootstrap_keypoint_offsets: bool = True
     # The pose GMM and joint-rotation smoothness of 3 rad/s (offline: 6) keep iSAM2's undamped
     # Gauss-Newton out of the directions keypoints barely see (collars, shoulder twist): without
     # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
@@ -140,7 +161,7 @@ class OnlineOptions:
     # 267 relabellings not in the truth, RA-MPJPE 0.19 -> 0.11 m without; docs/online.md), nor
     # in the AirCap bootstrap's batch solve, where the UAV cameras are held (held_body_swaps).
     graph: GraphOptions = field(
-        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False, held_body_swaps=False)
+        default_factory=lambda: GraphOptions(pose_prior="gmm", pose_sigma_rad_s=3.0, joint_sigma_m_s=None, moving_body_swaps=False, held_body_swaps=False, camera_sigma_m_s2=4.0)
     )
 
     def check(self) -> None:
@@ -160,6 +181,9 @@ class OnlineOptions:
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
         if self.lag_s * self.rate_hz < 2:
             raise MocapgraphError(f"lag_s: the window must hold at least 2 states at {self.rate_hz} Hz, got {self.lag_s} s")
+        for name, value in (("root_sigma_m_s2", self.root_sigma_m_s2), ("pose_sigma_rad_s2", None if self.pose_sigma_rad_s2 == "rig" else self.pose_sigma_rad_s2)):
+            if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2: or 'rig'), got {value!r}")
         for name in ("gate_min_keypoints", "gate_reacquire", "join_frames"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise MocapgraphError(f"{name}: a whole number >= 1, got {getattr(self, name)!r}")
@@ -292,6 +316,7 @@ class _Frame:
     time: float
     labellings: list[Labelling] = field(default_factory=list)
     no_prior: bool = False  # a UAV camera's frame without its onboard estimate
+    tied: bool = False  # a variable tied by smoothness to the camera's previous frame in the window
 
 
 class OnlineFusion:
@@ -315,6 +340,8 @@ class OnlineFusion:
         if not self.rig.cameras:
             raise MocapgraphError(f"capture {rig.name!r}: no cameras")
         self.kind = options.rig or ("aircap" if any(cam.mount is not None for cam in self.rig.cameras) else "smartmocap")
+        pose_sigma = options.pose_sigma_rad_s2
+        self._pose_sigma_rad_s2 = (20.0 if self.kind == "smartmocap" else None) if pose_sigma == "rig" else pose_sigma
         self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
         self.body = load_body_model()
         self.record = record
@@ -327,6 +354,7 @@ class OnlineFusion:
         self.smoother = self._new_smoother()
         self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
         self._caches: dict[str, ShapeTableCache] = {}
+        self._keypoint_offsets: dict[str, np.ndarray] = {}  # by detector format, (K, 3): the bootstrap's
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
         self._buffer: list[StreamFrame] = []
         self._bootstrapped = False
@@ -497,11 +525,13 @@ class OnlineFusion:
             result = run_aircap(mini, options)
         else:
             options = SmartmocapOptions(
-                motion_prior=o.bootstrap_motion_prior, keypoint_offsets=False, covariances=False, workers=1, detectors=detectors,
+                motion_prior=o.bootstrap_motion_prior, keypoint_offsets=o.bootstrap_keypoint_offsets, covariances=False, workers=1, detectors=detectors,
                 graph=replace(SmartmocapOptions().graph, focal="fixed", swaps=o.graph.swaps),
             )  # fmt: skip
             result = run_smartmocap(mini, options)
         self.shape = np.asarray(result.shape, dtype=float)
+        self._keypoint_offsets = {fmt: offsets_from_table(fmt, table) for fmt, table in result.parameters.get("keypoint_offsets_m", {}).items()}
+        self._caches.clear()
         self.world_frame = result.world_frame
         n = int(math.floor((self._buffer[-1].timestamp - self.t0) / self.period + _SNAP)) + 2
         grid = self.t0 + self.period * np.arange(n)
@@ -578,7 +608,7 @@ class OnlineFusion:
 
     def _cache(self, fmt: str) -> ShapeTableCache:
         if fmt not in self._caches:
-            self._caches[fmt] = ShapeTableCache(self.body, fmt)
+            self._caches[fmt] = ShapeTableCache(self.body, fmt, offsets=self._keypoint_offsets.get(fmt))
         return self._caches[fmt]
 
     def _body_at(self, i: int, a: float) -> tuple[np.ndarray, np.ndarray]:
@@ -700,7 +730,13 @@ class OnlineFusion:
             return frames[t]
         key = camera_key(c, int(self._frame_count[c] % CAMERA_STRIDE))
         self._frame_count[c] += 1
+        tied = previous is not None and previous.key is not None and self._in_window(previous.key)
+        before = max((f for f in frames.values() if f.time < previous.time), key=lambda f: f.time, default=None) if tied and previous.tied else None
         start = seed if seed is not None else prior[0] if prior is not None else previous.pose
+        if seed is None and prior is None and before is not None:
+            # the centre at constant velocity: each factor is linearised where its variables start
+            start = previous.pose.copy()
+            start[:3, 3] += (previous.pose[:3, 3] - before.pose[:3, 3]) * (t - previous.time) / (previous.time - before.time)
         self._pending_values.insert(key, gtsam.Pose3(start))
         self._pending_stamps[key] = t
         if prior is not None:
@@ -713,11 +749,17 @@ class OnlineFusion:
                 self._pending_stamps[offset] = t
                 self._offsets.add(offset)
             self._pending.add(camera_offset_prior_factor(offset, key, prior[0], prior[1] * o.camera_prior_white_fraction**2, kernel=o.camera_prior_kernel))
-        if previous is not None and previous.key is not None and (self.smoother.holds(previous.key) or self._pending_values.exists(previous.key)):
+        if tied:
             dt = max(t - previous.time, 1e-3)
             self._pending.add(camera_smoothness_factor(previous.key, key, dt, o.graph.camera_sigma_rad_s, o.graph.camera_sigma_m_s))
-        frames[t] = _Frame(key, start, t)
+        if before is not None and o.graph.camera_sigma_m_s2 is not None and self._in_window(before.key):
+            self._pending.add(camera_acceleration_factor([before.key, previous.key, key], [before.time, previous.time, t], o.graph.camera_sigma_m_s2))
+        frames[t] = _Frame(key, start, t, tied=tied)
         return frames[t]
+
+    def _in_window(self, key: int) -> bool:
+        """Whether ``key`` is a variable of the window or of the update being gathered."""
+        return self.smoother.holds(key) or self._pending_values.exists(key)
 
     def _join(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None) -> _Frame | None:
         """A static camera of an uncalibrated rig that the bootstrap did not see: its first
@@ -821,8 +863,12 @@ class OnlineFusion:
         labelling = None
         if o.swaps:
             allowed = np.ones((1, len(SWAP_KINDS)), dtype=bool)
-            # a whole-body relabelling of a moving camera only where a prior pins its pose
-            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap")
+            # A whole-body relabelling of a moving camera only where something holds its pose on
+            # the person's side: a prior (AirCap, moving_body_swaps), or an uncalibrated camera's
+            # previous frame, which its variable starts at and is tied to: the hypotheses are
+            # decided there. Without it the handheld camera of rich went round the person for
+            # each of its detector's whole-body flips (3 m off for 0.7 s, 10 s capture).
+            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap") or (self.kind == "smartmocap" and view.tied)
             labelling = Labelling(swap_hypotheses(self.body, fmt), 0.5 * o.swap_cost_sigmas**2, allowed=allowed)
             view.labellings.append(labelling)
         between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": a} if a else {}
@@ -862,6 +908,13 @@ class OnlineFusion:
             if k > 0:
                 self._pending.add(root_smoothness_factor(root_key(k - 1), root_key(k), self.period, (o.graph.root_sigma_rad_s, o.graph.root_sigma_m_s)))
                 self._pending.add(pose_velocity_factor(pose_key(k - 1), pose_key(k), self.period, o.graph.pose_sigma_rad_s))
+            if k > 1 and self._in_window(root_key(k - 2)):
+                times = self.t0 + self.period * np.arange(k - 2, k + 1)
+                if o.root_sigma_m_s2 is not None:
+                    # the camera's constant-velocity factor, on the root's Pose3 as on a camera's
+                    self._pending.add(camera_acceleration_factor([root_key(k - 2), root_key(k - 1), root_key(k)], times, o.root_sigma_m_s2))
+                if self._pose_sigma_rad_s2 is not None:
+                    self._pending.add(pose_smoothness_factor([pose_key(k - 2), pose_key(k - 1), pose_key(k)], times, self._pose_sigma_rad_s2))
             self.newest = k
             created.append((k, root, pose))
         keep = [*self._static_keys.values(), *self._offsets]
@@ -881,9 +934,11 @@ class OnlineFusion:
                 self.filtered[k] = (root, pose)
             for c, frames in self._frames.items():
                 for t, f in frames.items():
-                    if f.key is None or t in self.filtered_cameras[c]:
+                    if t in self.filtered_cameras[c] or f.no_prior:
                         continue
-                    self.filtered_cameras[c][t] = self.smoother.estimate.atPose3(f.key).matrix() if self.smoother.estimate.exists(f.key) else f.pose
+                    # a held camera (a static one at the bootstrap's estimate, a UAV's at its onboard
+                    # one) too: the pose its frame was explained with
+                    self.filtered_cameras[c][t] = self.smoother.estimate.atPose3(f.key).matrix() if f.key is not None and self.smoother.estimate.exists(f.key) else f.pose
         self._retire(report.left)
         # the camera frames' current estimates, for the gate and the next frames' starts
         for frames in self._frames.values():
@@ -930,8 +985,9 @@ class OnlineFusion:
         self._pending, self._pending_values, self._pending_stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
         return self.smoother.update(factors, values, stamps)
 
-    def _retire(self, left: gtsam.Values) -> None:
-        """Record what left the window (states and camera frames) and forget it."""
+    def _retire(self, left: gtsam.Values, everything: bool = False) -> None:
+        """Record what left the window (states and camera frames; ``everything``: all of the
+        window's, at the end of the stream) and forget it."""
         for key in left.keys():
             symbol = gtsam.Symbol(key)
             if chr(symbol.chr()) == "r":
@@ -943,11 +999,13 @@ class OnlineFusion:
                 self._seed.pop(k, None)
         for k in [k for k in self._recent if k < self.newest - 8]:
             del self._recent[k]
-        bound = self.smoother.newest - self.options.lag_s
+        bound = np.inf if everything else self.smoother.newest - self.options.lag_s
         for c, frames in self._frames.items():
             for t in [t for t, f in frames.items() if t < bound or (f.key is not None and left.exists(f.key))]:
                 f = frames.pop(t)
-                if f.key is not None and self.record:
+                if f.key is None and self.record and not f.no_prior:
+                    self.smoothed_cameras[c][t] = f.pose
+                elif f.key is not None and self.record:
                     values = left if left.exists(f.key) else self.smoother.estimate
                     self.smoothed_cameras[c][t] = values.atPose3(f.key).matrix()
                 self._record_swaps(c, t, f)
@@ -994,7 +1052,7 @@ class OnlineFusion:
             return
         self._flush()
         self.open = None
-        self._retire(self.smoother.estimate)
+        self._retire(self.smoother.estimate, everything=True)
 
     def results(self, capture_label: str = "", parameters: dict | None = None) -> tuple[Result, Result]:
         """``(filtered, smoothed)`` as results (after :meth:`finish`, with ``record``)."""
