@@ -10,7 +10,9 @@ camera, 2 the second, "moving" the hand-held one.
 takes of those held-out subjects (walks, a turning dance, a dance, an everyday motion), each with
 its own seed, solved with and without the carried phones' IMUs (the default, and the
 accelerometer at its datasheet noise) and with and without the moving cameras' constant-velocity
-model (``camera_sigma_m_s2`` None); the medians over the takes.
+model (``camera_sigma_m_s2`` None); the medians over the takes. The default variant is solved
+with its covariances too, and each take reports how many of its joint and camera-centre errors lie
+inside their 95 % ellipsoids (goal 0.85-0.99 on every take).
 """
 
 from __future__ import annotations
@@ -60,6 +62,10 @@ PHONES_REPORTED = (
     "mpe_m", "ra_mpjpe_m",
 )  # fmt: skip
 PHONES_GOALS = {"moving_mcpe_procrustes_m": 0.05, "moving_mcoe_procrustes_rad": 0.03, "static_mcpe_m": 0.02}
+COVERAGE = ("coverage95_joints", "coverage95_cameras")
+"""Of the default variant (``imu_gyro``, with covariances), per take: the share of joint and of
+camera-centre errors inside their 95 % ellipsoids (``evaluate.coverage``)."""
+COVERAGE_GOAL = (0.85, 0.99)
 
 
 def bench_smartmocap(
@@ -90,11 +96,11 @@ def bench_phones(duration_s: float = 3.0, seed: int = 0, workers: int = 2, takes
         capture = synthesize("phones", seed=seed + k, duration_s=duration_s, motion=f"cmu:{take}")
         for name, (noise, sigma) in PHONES_VARIANTS.items():
             # without the keypoint-offset passes: five takes in five variants on a shared machine
-            options = SmartmocapOptions(imu=noise is not None, workers=workers, covariances=False, keypoint_offsets=False)
+            options = SmartmocapOptions(imu=noise is not None, workers=workers, covariances=name == "imu_gyro", keypoint_offsets=False)
             options.graph = replace(options.graph, camera_sigma_m_s2=default if sigma == "default" else sigma, imu_noise=noise or PHONE_IMU_NOISE)
             result = run_smartmocap(capture, options)
             metrics = evaluate(result, capture).metrics
-            row = {key: round(metrics[key], 4) for key in PHONES_REPORTED if key in metrics}
+            row = {key: round(metrics[key], 4) for key in PHONES_REPORTED + COVERAGE if key in metrics}
             row["seconds_per_chunk"] = result.parameters["seconds_per_chunk"]
             rows.setdefault(name, {})[f"{take.removesuffix('.npz')}_seed{seed + k}"] = row
             log.info("bench phones: %s seed %d %s: %s", take, seed + k, name, row)  # a long run's rows survive an interruption
@@ -106,6 +112,10 @@ def bench_phones(duration_s: float = 3.0, seed: int = 0, workers: int = 2, takes
         "preset": "phones", "duration_s": duration_s, "takes": list(takes), "seeds": [seed + k for k in range(len(takes))],
         "camera_sigma_m_s2_default": default, "goals": PHONES_GOALS, "median": medians, "per_take": rows,
         "goals_met_with_imu": {key: bool(medians["imu_gyro"][key] <= goal) for key, goal in PHONES_GOALS.items()},
+        "coverage_goal": COVERAGE_GOAL,
+        "coverage_met_every_take": {
+            key: all(COVERAGE_GOAL[0] <= row[key] <= COVERAGE_GOAL[1] for row in rows["imu_gyro"].values()) for key in COVERAGE
+        },
     }  # fmt: skip
 
 
