@@ -49,6 +49,7 @@ from mocapgraph.graphs.initialisation import (
     fused_shape,
     ground_frame,
     moving_cameras_from_static,
+    posed_view_swaps,
     relative_cameras,
     rotation_mean,
     view_bodies,
@@ -93,6 +94,10 @@ class SmartmocapOptions:
     offset_iterations: int = 15
     # Views left out, and the sequence solved again, up to this many times while more show up.
     offset_rounds: int = 2
+    # After the first final pass, every camera-frame's labels checked against all the placed
+    # cameras' epipolar geometry (graphs.initialisation.posed_view_swaps) and the sequence solved
+    # again on them (with graph.swaps only).
+    posed_swaps: bool = True
     # Moving cameras' IMU logs (gyroscope and accelerometer, with the capture's mount) as
     # preintegrated factors between their frames (mocapgraph.graphs.camera_imu).
     imu: bool = True
@@ -408,6 +413,22 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     bg, graph, solved_final = final_pass(model, body, options, learned, stitched, {}, options.final_iterations, imu=imu)
     estimate = bg.read(solved_final.values, stitched)
     estimate.log = list(solved_final.log)
+    if options.graph.swaps and options.posed_swaps:
+        # Every camera placed: each camera-frame's labels checked against all the others'
+        # epipolar geometry at that state, the moving cameras' too. Where a single static camera
+        # sees the person, its swapped view and the moving cameras' outvote each other there,
+        # which the solve's per-camera choice cannot (on phones, 10 s, it relabelled the clean
+        # static phone and kept the carried phones' runs: precision and recall 0.51; with this
+        # check 0.96); then the sequence solved again on them.
+        posed = posed_view_swaps(model, estimate.cameras)
+        if any((codes > 0).any() for codes in posed.values()):
+            before = {**before, **combined_swaps(model, before, posed)}
+            model = model.relabelled(posed)
+            # held as checked: the solve's own choice, from a body fitted to the swapped views,
+            # put the swaps back (phones, 10 s: the same frames recorded before and after)
+            bg, graph, solved_final = final_pass(model, body, options, learned, estimate, {}, options.offset_iterations, imu=imu, solved_start=True, relabel=False)
+            estimate = bg.read(solved_final.values, estimate)
+            estimate.log += list(solved_final.log)
     offsets: dict[str, np.ndarray] = {}
     if options.keypoint_offsets:
         # the keypoints' definitions seen by the solve, then the solve again with them, without
@@ -495,16 +516,18 @@ def _ranges(frames: np.ndarray) -> str:
 
 def final_pass(
     model: StateModel, body: BodyModel, options: SmartmocapOptions, learned: LearnedPriors, start: Estimate, offsets: dict, iterations: int,
-    estimate_offsets: bool = False, imu: dict | None = None,
+    estimate_offsets: bool = False, imu: dict | None = None, solved_start: bool = False, relabel: bool = True,
 ):  # fmt: skip
     """The whole sequence solved from ``start`` with the formats' keypoint ``offsets`` (held, or
     the start of their estimate with ``estimate_offsets``) and the cameras' ``imu`` logs: its
-    graph builder, graph and solve."""
+    graph builder, graph and solve; robust from the first step when ``start`` is a solve's
+    (``solved_start``, or any ``offsets``); the labels as the model has them without ``relabel``."""
     graph_options = replace(options.graph, offsets="estimate") if estimate_offsets else options.graph
     bg = BodyGraph(model, body, graph_options, learned=learned, keypoint_offsets=offsets, imu=imu)
     graph, values = sequence_graph(bg, start, options.gauge_sigmas)
+    bg.relabel(relabel)
     stages = bg.stages(iterations, bg.time_ordering(values))
-    if offsets:
+    if offsets or solved_start:
         stages = stages[1:]  # from a solved start: robust from the first step
     solved = solve_staged(held(graph, values, bg.held_keys()), values, stages, progress="smartmocap final", project=bg.project_shape)
     return bg, graph, solved
