@@ -420,10 +420,13 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         # which the solve's per-camera choice cannot (on phones, 10 s, it relabelled the clean
         # static phone and kept the carried phones' runs: precision and recall 0.51; with this
         # check 0.96); then the sequence solved again on them.
-        posed = posed_view_swaps(model, estimate.cameras)
-        if any((codes > 0).any() for codes in posed.values()):
-            before = {**before, **combined_swaps(model, before, posed)}
-            model = model.relabelled(posed)
+        # From the labels as detected (a swap is its own inverse): two static phones alone could
+        # not tell which of them swapped the legs, all four can.
+        detected = model.relabelled(before)
+        posed = posed_view_swaps(detected, estimate.cameras)
+        if any(not np.array_equal(np.maximum(codes, 0), np.maximum(before.get(c, codes * 0), 0)) for c, codes in posed.items()):
+            before = {**before, **posed}
+            model = detected.relabelled(before)
             # held as checked: the solve's own choice, from a body fitted to the swapped views,
             # put the swaps back (phones, 10 s: the same frames recorded before and after)
             bg, graph, solved_final = final_pass(model, body, options, learned, estimate, {}, options.offset_iterations, imu=imu, solved_start=True, relabel=False)

@@ -13,7 +13,8 @@ every other camera; relabelled by the swap's permutation they fit it again.
 :func:`pair_tables` scores every pair's fit under every combination of the two cameras'
 labellings, :func:`labelling_cost` adds a prior against swaps and against changes from frame to
 frame (detectors swap in runs), and :func:`resolve_swaps` lowers it, one camera
-(:func:`decide_labels`, Viterbi) or one frame (:func:`best_frames`) at a time, alternating with
+(:func:`decide_labels`, Viterbi) or one frame (:func:`best_frames`) at a time, or for a few
+cameras all of them over the sequence (:func:`joint_labels`), alternating with
 new essential matrices on the new labels. A swap every camera shares fits as well as none: the
 skeleton's handedness and limbs (:func:`anatomy_scores`, :func:`absolute_labels`) decide those.
 
@@ -617,7 +618,9 @@ def resolve_swaps(
     refined from the previous round's) and lowers :func:`labelling_cost` by moves: relabel the
     camera whose best sequence of labels (:func:`decide_labels` against the others' current
     ones) lowers it the most; when no camera helps, relabel frames jointly (:func:`best_frames`);
-    when neither helps, the body decides each frame's absolute side (:func:`absolute_labels`
+    with at most :data:`MAX_SEQUENCE_CAMERAS` cameras, the least-cost labels of all of them
+    over the sequence (:func:`joint_labels`) replace the moves' where they cost less; then
+    the body decides each frame's absolute side (:func:`absolute_labels`
     from :func:`pair_anatomy`: a swap shared by every camera fits the epipolar geometry as well
     as none). Taking the strongest evidence first
     keeps a camera with many swaps from making the clean ones look swapped. The rounds stop when
