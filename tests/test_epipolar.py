@@ -277,3 +277,43 @@ def test_pair_from_poses_fits_exact_projections():
     Xb = (X - Tb[:3, 3]) @ Tb[:3, :3]
     scale = np.linalg.norm(Tb[:3, 3] - Ta[:3, 3])
     np.testing.assert_allclose(Xa @ pair.R.T + scale * pair.t, Xb, atol=1e-9)
+
+
+def test_per_frame_geometry_of_moving_cameras(scene):
+    """Poses ``(N, 4, 4)`` give one geometry per frame, each equal to the single-pose geometry of
+    that frame; its triangulation too. With two cameras circling the person (no single essential
+    matrix), :func:`resolve_swaps` given their poses per frame finds the runs injected into one."""
+    N = scene["exact"].shape[1]
+    cx, cy = scene["points"][..., :2].reshape(-1, 2).mean(axis=0)
+    orbit = np.radians(np.linspace(0.0, 120.0, N))
+    walkers = [
+        np.stack([look_at([cx + 4.5 * np.cos(a), cy + 4.5 * np.sin(a), 1.5], [cx, cy, 0.9]) for a in orbit]),
+        np.stack([look_at([cx - 4.0 * np.sin(a), cy + 4.0 * np.cos(a), 1.6], [cx, cy, 0.9]) for a in orbit]),
+    ]
+    poses = np.stack([np.repeat(scene["poses"][c][None], N, axis=0) for c in (0, 2)] + walkers)
+    K = scene["Ks"][0]
+    exact = np.stack([np.stack([project_points(scene["points"][n], poses[c, n], K)[0] for n in range(N)]) for c in range(4)])
+    noisy = exact + np.random.default_rng(1).normal(0.0, NOISE_PX, exact.shape)
+    pair = E.pair_from_poses(1, 2, poses[1], poses[2], K, K)
+    assert pair.F.shape == (N, 3, 3) and pair.t.shape == (N, 3)
+    for n in (0, N // 2, N - 1):
+        single = E.pair_from_poses(1, 2, poses[1, n], poses[2, n], K, K)
+        np.testing.assert_allclose(pair.F[n], single.F, atol=1e-12)
+        np.testing.assert_allclose(E.triangulate_pair(pair, exact[1], exact[2], K, K)[n], E.triangulate_pair(single, exact[1, n], exact[2, n], K, K), atol=1e-9)
+    assert np.max(E.sampson_px(pair.F, exact[1], exact[2])) < 1e-6
+    x, truth = inject(noisy, {2: [(10, 25, "body"), (90, 8, "legs")], 3: [(50, 20, "body")]})
+    labels = E.resolve_swaps(x, scene["w"], np.stack([K] * 4), NAMES, threshold_px=15.0, poses=poses).labels
+    found, true = labels > 0, truth > 0
+    assert (found & true).sum() / found.sum() >= 0.95 and (found & true).sum() / true.sum() >= 0.95
+    assert np.mean(labels[true] == truth[true]) >= 0.95
+
+
+def test_joint_labels_is_the_least_cost_labelling():
+    """Over every labelling of two cameras' three frames (4⁶), none costs less than
+    :func:`joint_labels`' by :func:`labelling_cost`."""
+    rng = np.random.default_rng(5)
+    S = len(SWAP_KINDS)
+    tables = {(0, 1): rng.uniform(0.0, 12.0, (3, S, S))}
+    best = E.joint_labels(tables, (2, 3))
+    costs = [E.labelling_cost(tables, np.reshape(flat, (2, 3))) for flat in itertools.product(range(S), repeat=6)]
+    assert E.labelling_cost(tables, best) <= min(costs) + 1e-9

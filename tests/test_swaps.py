@@ -104,3 +104,55 @@ def test_calibrated_baseline_relabels_static_cameras():
     assert any("left/right labels undone" in n for n in checked.parameters["notes"])
     assert checked.flags["num_views"].sum() > plain.flags["num_views"].sum()
     assert checked.parameters["median_reprojection_error_px"] < plain.parameters["median_reprojection_error_px"] + 0.05
+
+
+def phones_confusion(capture, codes: dict[str, np.ndarray]) -> tuple[int, int, int]:
+    """Per-camera-frame ``codes`` (camera name → ``(T_c,)``, -1 where not observed) against the
+    simulator's record: (right kind found, relabelled wrongly or when not swapped, swapped but not found)."""
+    tp = fp = fn = 0
+    for cam in capture.cameras:
+        (truth,) = capture.ground_truth.swaps[cam.name].values()
+        got = codes[cam.name]
+        seen = got >= 0
+        tp += int(np.sum((truth > 0) & (got == truth) & seen))
+        fp += int(np.sum((got > 0) & (got != truth) & seen))
+        fn += int(np.sum((truth > 0) & (got != truth) & seen))
+    return tp, fp, fn
+
+
+@pytest.fixture(scope="module")
+def phones():
+    """Two static phones and two carried ones, 4 s: where only one static phone sees the person
+    and a carried phone swaps its whole body while the other static phone swaps the legs."""
+    return synthesize("phones", seed=0, duration_s=4.0)
+
+
+def test_every_placed_camera_checks_the_others_labels(phones):
+    """With the cameras' true poses, the epipolar check of every camera-frame against all the
+    others at that state (the carried phones' geometry frame by frame) finds the simulator's
+    swaps: 65 of 65 camera-frames, none wrongly (measured). The static phones alone, before
+    anything is placed, can check only each other."""
+    from mocapgraph.graphs.initialisation import posed_view_swaps, view_swaps
+    from mocapgraph.pipelines.observations import capture_state_model
+
+    model = capture_state_model(phones, "closest")
+    truth = np.concatenate([next(iter(phones.ground_truth.swaps[cam.name].values())) for cam in phones.cameras])
+    assert np.sum(truth > 0) >= 40, "the capture should hold sustained swaps"
+    codes = posed_view_swaps(model, [phones.ground_truth.cameras[cam.name] for cam in phones.cameras])
+    tp, fp, fn = phones_confusion(phones, {cam.name: codes[c] for c, cam in enumerate(phones.cameras)})
+    assert tp / (tp + fp) >= 0.95 and tp / (tp + fn) >= 0.95, (tp, fp, fn)
+    assert set(view_swaps(model)) == {c for c, cam in enumerate(phones.cameras) if not cam.moving}
+
+
+@pytest.mark.slow  # 75 s: SmartMocap on 4 s of phones
+def test_phones_swaps_found_by_smartmocap(phones):
+    """SmartMocap's relabelled frames on the phones capture against the simulator's record:
+    precision and recall >= 0.95 over all four phones (63 of the 65 swapped camera-frames
+    found, a whole-body run's last 2 frames taken for a leg swap; measured), from the check of
+    :func:`posed_view_swaps` after the first final pass, the sequence solved again on its labels.
+    With that check on top of the static phones' pre-pass instead of from the labels as
+    detected, it was 52 right, 18 wrong, 13 missed: two static phones alone cannot tell which of
+    them swapped the legs."""
+    result = run_smartmocap(phones, SmartmocapOptions(covariances=False))
+    tp, fp, fn = confusion(result, phones)
+    assert tp / (tp + fp) >= 0.95 and tp / (tp + fn) >= 0.95, (tp, fp, fn)

@@ -15,6 +15,7 @@ import numpy as np
 
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.sim.synthetic import synthesize
+from mocapgraph.errors import MocapgraphError
 from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
 
 PRESETS = ("rich", "phones")
@@ -52,10 +53,14 @@ def _run(capture, swaps: bool, workers: int) -> dict:
     return row
 
 
-def bench_faults(duration_s: float = 10.0, seed: int = 0, workers: int = 2) -> dict:
-    """Per preset: faultless, realistic faults handled, realistic faults with labels as detected."""
+def bench_faults(duration_s: float = 10.0, seed: int = 0, workers: int = 2, presets: str = ",".join(PRESETS)) -> dict:
+    """Per preset of ``presets`` (comma-separated among :data:`PRESETS`): faultless, realistic
+    faults handled, realistic faults with labels as detected."""
+    wanted = [name.strip() for name in presets.split(",") if name.strip()]
+    if not wanted or any(name not in PRESETS for name in wanted):
+        raise MocapgraphError(f"presets {presets!r}: choose among {', '.join(PRESETS)}")
     out: dict = {"duration_s": duration_s, "seed": seed, "goal": f"realistic within {GOAL_RATIO}x of none on {', '.join(COMPARED)}"}
-    for preset in PRESETS:
+    for preset in wanted:
         none = synthesize(preset, seed=seed, duration_s=duration_s, detector_faults="none")
         faulty = synthesize(preset, seed=seed, duration_s=duration_s, detector_faults="realistic")
         rows = {"none": _run(none, True, workers), "realistic": _run(faulty, True, workers), "realistic_swaps_off": _run(faulty, False, workers)}

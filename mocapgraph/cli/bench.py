@@ -24,7 +24,7 @@ BENCHES = {
     ),
     "faults": (
         "SmartMocap with realistic detector faults against none, and with swap handling off (rich, phones)",
-        "mocapgraph.benchmarks.faults:bench_faults", {"workers": ("parallel chunks", {})},
+        "mocapgraph.benchmarks.faults:bench_faults", {"workers": ("parallel chunks", {}), "presets": ("comma-separated: rich, phones", {})},
     ),
     "online": (
         "the online loop (fixed-lag iSAM2) on aircap and rich: updates/s, latency, memory, filtered/smoothed/offline errors",

@@ -431,6 +431,39 @@ SWAP_THRESHOLD_FRACTION = 0.01
 the larger image side of a camera's principal point box (2·max(cx, cy)): 19 px at 1920 px."""
 
 
+def _swap_rig(model: StateModel, cameras: list[int]) -> tuple[list[int], str] | None:
+    """Of ``cameras``, those with observations in the most common keypoint format among them,
+    and that format; None when fewer than two."""
+    views = {c: model.view_keypoints(c) for c in cameras}
+    views = {c: v for c, v in views.items() if v is not None}
+    formats = [fmt for _, fmt in views.values()]
+    if len(views) < 2:
+        return None
+    fmt = max(set(formats), key=formats.count)
+    cams = [c for c, (_, f) in views.items() if f == fmt]
+    return (cams, fmt) if len(cams) >= 2 else None
+
+
+def _rig_swaps(model: StateModel, cams: list[int], fmt: str, poses=None) -> dict[int, np.ndarray]:
+    """:func:`~mocapgraph.data_tools.geometry.epipolar.resolve_swaps` on cameras ``cams``' keypoints
+    of format ``fmt`` at every state (with their ``poses``, ``(C, 4, 4)`` or ``(C, N, 4, 4)``,
+    when given), as per camera ``(F_c,)`` codes, -1 for frames without an observation."""
+    views = [model.view_keypoints(c)[0] for c in cams]
+    x = np.stack([v[..., :2] for v in views])
+    w = np.stack([np.nan_to_num(v[..., 2]) for v in views])
+    Ks = np.stack([model.cameras[c].K for c in cams])
+    names = BODY_KEYPOINT_NAMES if fmt == "body" else get_format(fmt).names
+    threshold = SWAP_THRESHOLD_FRACTION * 2.0 * float(np.max(Ks[:, :2, 2]))
+    labels = resolve_swaps(x, w, Ks, names, threshold_px=threshold, poses=poses).labels  # (C, N) per state
+    out: dict[int, np.ndarray] = {}
+    for row, c in enumerate(cams):
+        codes = np.full(len(model.cameras[c].timestamps), -1, dtype=np.int8)
+        frames = model.camera_frames(c)
+        codes[frames] = labels[row, model.frame_state[c][frames]]
+        out[c] = codes
+    return out
+
+
 def view_swaps(model: StateModel) -> dict[int, np.ndarray]:
     """Per static camera, ``(F_c,)`` the left/right labelling of each of its frames that fits
     the other static cameras' epipolar geometry (:func:`mocapgraph.data_tools.geometry.epipolar.resolve_swaps`
@@ -440,27 +473,39 @@ def view_swaps(model: StateModel) -> dict[int, np.ndarray]:
     Before any camera is placed, a view whose labels are swapped would place the body turned
     around and its camera with it; the essential matrices of the views' pooled keypoints need
     no body. Moving cameras (whose pairs have no single essential matrix) and cameras of
-    another keypoint format are left as detected; with fewer than two static cameras nothing
-    is checked."""
-    views = {c: model.view_keypoints(c) for c in range(model.num_cameras) if not model.cameras[c].moving}
-    views = {c: v for c, v in views.items() if v is not None}
-    formats = [fmt for _, fmt in views.values()]
-    out: dict[int, np.ndarray] = {}
-    if len(views) < 2:
-        return out
-    fmt = max(set(formats), key=formats.count)
-    cams = [c for c, (_, f) in views.items() if f == fmt]
-    if len(cams) < 2:
-        return out
-    x = np.stack([views[c][0][..., :2] for c in cams])
-    w = np.stack([np.nan_to_num(views[c][0][..., 2]) for c in cams])
-    Ks = np.stack([model.cameras[c].K for c in cams])
-    names = BODY_KEYPOINT_NAMES if fmt == "body" else get_format(fmt).names
-    threshold = SWAP_THRESHOLD_FRACTION * 2.0 * float(np.max(Ks[:, :2, 2]))
-    labels = resolve_swaps(x, w, Ks, names, threshold_px=threshold).labels  # (C, N) per state
-    for row, c in enumerate(cams):
-        codes = np.full(len(model.cameras[c].timestamps), -1, dtype=np.int8)
-        frames = model.camera_frames(c)
-        codes[frames] = labels[row, model.frame_state[c][frames]]
-        out[c] = codes
-    return out
+    another keypoint format are left as detected (:func:`posed_view_swaps` checks them once they
+    are placed); with fewer than two static cameras nothing is checked."""
+    rig = _swap_rig(model, [c for c in range(model.num_cameras) if not model.cameras[c].moving])
+    return {} if rig is None else _rig_swaps(model, *rig)
+
+
+def posed_view_swaps(model: StateModel, cameras: list[np.ndarray]) -> dict[int, np.ndarray]:
+    """Per camera, ``(F_c,)`` the left/right labelling of each of its frames that fits every
+    other camera's epipolar geometry at that state, the geometry taken from the placed cameras'
+    poses (``cameras``: per camera ``(F_c, 4, 4)`` world_T_camera, as
+    :attr:`~mocapgraph.graphs.state_model.Estimate.cameras`): codes of
+    :data:`~mocapgraph.body.labelling.SWAP_KINDS`, -1 for frames without an observation.
+
+    Unlike :func:`view_swaps` this checks the moving cameras too, each pair's geometry frame by
+    frame (:func:`~mocapgraph.data_tools.geometry.epipolar.pair_from_poses`), so that where one
+    static camera sees the person a swapped view is outvoted by the moving ones. The geometry
+    rests on the cameras' relative rotations and the directions of their baselines, which a
+    placement tens of centimetres off barely changes: on ``phones`` (10 s, seed 0), from a
+    solve's poses 25-90 cm off, it found 94 % of the swapped camera-frames at 96 % precision, from
+    the true poses 95 % at 97 %. Cameras of another keypoint format are left as detected."""
+    rig = _swap_rig(model, list(range(model.num_cameras)))
+    if rig is None:
+        return {}
+    cams, fmt = rig
+    poses = np.stack([_state_poses(model, c, cameras[c]) for c in cams])
+    return _rig_swaps(model, cams, fmt, poses)
+
+
+def _state_poses(model: StateModel, c: int, frames: np.ndarray) -> np.ndarray:
+    """``(N, 4, 4)`` camera ``c``'s pose at each state: that of its frame there, else of its
+    frame nearest in time (such states have no observation of ``c``)."""
+    own = model.camera_frames(c)
+    times = model.cameras[c].timestamps[own]
+    nearest = own[np.abs(model.times[:, None] - times[None, :]).argmin(axis=1)]
+    nearest[model.frame_state[c][own]] = own
+    return frames[nearest]

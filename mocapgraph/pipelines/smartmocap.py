@@ -50,6 +50,7 @@ from mocapgraph.graphs.initialisation import (
     fused_shape,
     ground_frame,
     moving_cameras_from_static,
+    posed_view_swaps,
     relative_cameras,
     rotation_mean,
     view_bodies,
@@ -109,6 +110,10 @@ class SmartmocapOptions:
     # "body": the static cameras as the body's solve leaves them.
     static_cameras: str = "points"
     static_gm_sigma_px: float = 10.0  # Geman-McClure scale of that adjustment
+    # After the first final pass, every camera-frame's labels checked against all the placed
+    # cameras' epipolar geometry (graphs.initialisation.posed_view_swaps) and the sequence solved
+    # again on them (with graph.swaps only).
+    posed_swaps: bool = True
     # Moving cameras' IMU logs (gyroscope and accelerometer, with the capture's mount) as
     # preintegrated factors between their frames (mocapgraph.graphs.camera_imu).
     imu: bool = True
@@ -455,6 +460,27 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             estimate.log += list(solved_final.log)
         else:
             tracks = None
+    if options.graph.swaps and options.posed_swaps:
+        # Every camera placed: each camera-frame's labels checked against all the others'
+        # epipolar geometry at that state, the moving cameras' too. Where a single static camera
+        # sees the person, its swapped view and the moving cameras' outvote each other there,
+        # which the solve's per-camera choice cannot (on phones, 10 s, it relabelled the clean
+        # static phone and kept the carried phones' runs: precision and recall 0.51; with this
+        # check 0.96); then the sequence solved again on them.
+        # From the labels as detected (a swap is its own inverse): two static phones alone could
+        # not tell which of them swapped the legs, all four can.
+        detected = model.relabelled(before)
+        posed = posed_view_swaps(detected, estimate.cameras)
+        if any(not np.array_equal(np.maximum(codes, 0), np.maximum(before.get(c, codes * 0), 0)) for c, codes in posed.items()):
+            before = {**before, **posed}
+            model = detected.relabelled(before)
+            # held as checked: the solve's own choice, from a body fitted to the swapped views,
+            # put the swaps back (phones, 10 s: the same frames recorded before and after)
+            bg, graph, solved_final = final_pass(
+                model, body, options, learned, estimate, {}, options.offset_iterations, imu=imu, tracks=tracks, solved_start=True, relabel=False
+            )
+            estimate = bg.read(solved_final.values, estimate)
+            estimate.log += list(solved_final.log)
     offsets: dict[str, np.ndarray] = {}
     if options.keypoint_offsets:
         # the keypoints' definitions seen by the solve, then the solve again with them, without
@@ -564,17 +590,21 @@ def _ranges(frames: np.ndarray) -> str:
 def final_pass(
     model: StateModel, body: BodyModel, options: SmartmocapOptions, learned: LearnedPriors, start: Estimate, offsets: dict, iterations: int,
     estimate_offsets: bool = False, imu: dict | None = None, tracks: ReferenceTracks | None = None, hold: tuple[int, ...] = (),
+    solved_start: bool = False, relabel: bool = True,
 ):  # fmt: skip
     """The whole sequence solved from ``start`` with the formats' keypoint ``offsets`` (held, or
     the start of their estimate with ``estimate_offsets``), the cameras' ``imu`` logs and the
-    motion priors of a reference's ``tracks``: its graph builder, graph and solve."""
+    motion priors of a reference's ``tracks``, the cameras of ``hold`` held: its graph builder,
+    graph and solve; robust from the first step when ``start`` is a solve's (``solved_start``, or
+    any ``offsets``, ``tracks`` or ``hold``); the labels as the model has them without ``relabel``."""
     graph_options = replace(options.graph, offsets="estimate") if estimate_offsets else options.graph
     bg = BodyGraph(model, body, graph_options, learned=learned, keypoint_offsets=offsets, imu=imu)
     graph, values = sequence_graph(bg, start, options.gauge_sigmas)
     if tracks is not None:
         tracks.add_to(graph, model)
+    bg.relabel(relabel)
     stages = bg.stages(iterations, bg.time_ordering(values))
-    if offsets or hold or tracks is not None:
+    if offsets or hold or solved_start or tracks is not None:
         stages = stages[1:]  # from a solved start: robust from the first step
     solved = solve_staged(held(graph, values, bg.held_keys() + [k for k, (c, _) in bg.camera_vars().items() if c in hold]), values, stages, progress="smartmocap final", project=bg.project_shape)
     return bg, graph, solved
