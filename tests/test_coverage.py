@@ -133,4 +133,12 @@ def test_coverage_after_the_alignment_is_the_level():
     assert honest["joints"] == pytest.approx(0.95, abs=0.01)  # 6600 joints: ± 0.005 (2σ)
     assert honest["cameras"] == honest["cameras.walk"] == pytest.approx(0.95, abs=0.03)  # 300 centres: ± 0.025
     assert shrunk["joints"] == pytest.approx(chi2.cdf(chi2.ppf(0.95, 3) / 4, 3), abs=0.02)
+    # the same joints in the walking camera's frame at each instant (AirPose's world): the same share
+    per_frame = np.linalg.inv(moving)
+    airpose = Result(
+        pipeline="test", capture="-", world_frame="camera_per_frame:walk", timestamps=ts,
+        joints=np.einsum("tij,tkj->tki", per_frame[:, :3, :3], noisy) + per_frame[:, None, :3, 3],
+        covariances={"joints": np.einsum("tji,tkjl,tlm->tkim", moving[:, :3, :3], joint_cov, moving[:, :3, :3])},
+    )  # fmt: skip
+    assert result_coverage(airpose, capture)["joints"] == pytest.approx(honest["joints"], abs=1e-12)
     assert shrunk["cameras"] == pytest.approx(chi2.cdf(chi2.ppf(0.95, 3) / 4, 3), abs=0.06)

@@ -85,7 +85,8 @@ def _alignment(result: Result, capture: Capture, gt_joints: np.ndarray, est_join
 def in_capture_frame(result: Result, capture: Capture) -> Result:
     """A result whose world is a camera's frame at every instant (``camera_per_frame:<name>``,
     AirPose's), moved into the capture's world by that camera's true pose at each body
-    timestamp; the cameras' tracks by the pose at their own frames. Anything else is returned as is.
+    timestamp (the joints' covariances turned with it); the cameras' tracks by the pose at their
+    own frames. Anything else is returned as is.
     """
     if not result.world_frame.startswith(PER_FRAME_CAMERA):
         return result
@@ -108,6 +109,8 @@ def in_capture_frame(result: Result, capture: Capture) -> Result:
         moved.keypoints = np.einsum("tij,tkj->tki", T[:, :3, :3], result.keypoints) + T[:, None, :3, 3]
     if result.root is not None:
         moved.root = T @ result.root
+    if "joints" in result.covariances:  # poses' covariances live in their own frames: unchanged
+        moved.covariances = {**result.covariances, "joints": np.einsum("tij,tkjl,tml->tkim", T[:, :3, :3], result.covariances["joints"], T[:, :3, :3])}
     for cam_name, track in result.cameras.items():
         moved.cameras[cam_name] = CameraTrack(track.timestamps, pose_at(track.timestamps) @ track.world_T_camera)
     return moved
@@ -165,11 +168,8 @@ def coverage(result: Result, capture: Capture, level: float = 0.95) -> dict[str,
     centres' errors inside their ``level`` ellipsoids, after the evaluation's alignment
     (:func:`aligned`, the covariances carried through it): ``{"joints": share, "cameras": share,
     "cameras.<name>": share}``, each present where the result has those covariances. Honest
-    covariances cover ``level`` of the errors. A result whose world is a camera's at every instant
-    (AirPose's) gives none (its alignment changes from frame to frame)."""
-    if result.world_frame.startswith(PER_FRAME_CAMERA) or not result.covariances:
-        return {}
-    return _coverage(aligned(result, capture)[0], capture, level)
+    covariances cover ``level`` of the errors."""
+    return _coverage(aligned(result, capture)[0], capture, level) if result.covariances else {}
 
 
 def _coverage(moved: Result, capture: Capture, level: float) -> dict[str, float]:
@@ -196,7 +196,6 @@ def _coverage(moved: Result, capture: Capture, level: float) -> dict[str, float]
 def evaluate(result: Result, capture: Capture) -> Evaluation:
     """All metrics that the result's contents allow, against the capture's ground truth; with
     covariances, the share of errors inside their 95 % ellipsoids (``coverage95_*``, :func:`coverage`)."""
-    per_frame_world = result.world_frame.startswith(PER_FRAME_CAMERA)
     result, how = aligned(result, capture)
     gt = capture.ground_truth
     have, sel = matched_truth(result, gt)
@@ -261,6 +260,5 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
     if moving_pos:
         out["moving_mcpe_procrustes_m"] = float(M.mcpe_m(np.concatenate(moving_pos), np.concatenate(moving_ref)))
         out["moving_mcoe_procrustes_rad"] = float(M.mcoe_rad(np.concatenate(moving_pos), np.concatenate(moving_ref)))
-    if not per_frame_world:
-        out.update({f"coverage95_{key}": share for key, share in _coverage(result, capture, 0.95).items()})
+    out.update({f"coverage95_{key}": share for key, share in _coverage(result, capture, 0.95).items()})
     return Evaluation(out, how, int(have.sum()), int((~have).sum()), per_frame)
