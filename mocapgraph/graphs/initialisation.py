@@ -431,7 +431,7 @@ SWAP_THRESHOLD_FRACTION = 0.01
 the larger image side of a camera's principal point box (2·max(cx, cy)): 19 px at 1920 px."""
 
 
-def _swap_rig(model: StateModel, cameras: list[int]) -> tuple[list[int], str] | None:
+def common_format_cameras(model: StateModel, cameras: list[int]) -> tuple[list[int], str] | None:
     """Of ``cameras``, those with observations in the most common keypoint format among them,
     and that format; None when fewer than two."""
     views = {c: model.view_keypoints(c) for c in cameras}
@@ -475,7 +475,7 @@ def view_swaps(model: StateModel) -> dict[int, np.ndarray]:
     no body. Moving cameras (whose pairs have no single essential matrix) and cameras of
     another keypoint format are left as detected (:func:`posed_view_swaps` checks them once they
     are placed); with fewer than two static cameras nothing is checked."""
-    rig = _swap_rig(model, [c for c in range(model.num_cameras) if not model.cameras[c].moving])
+    rig = common_format_cameras(model, [c for c in range(model.num_cameras) if not model.cameras[c].moving])
     return {} if rig is None else _rig_swaps(model, *rig)
 
 
@@ -493,7 +493,7 @@ def posed_view_swaps(model: StateModel, cameras: list[np.ndarray]) -> dict[int, 
     placement tens of centimetres off barely changes: on ``phones`` (10 s, seed 0), from a
     solve's poses 25-90 cm off, it found 94 % of the swapped camera-frames at 96 % precision, from
     the true poses 95 % at 97 %. Cameras of another keypoint format are left as detected."""
-    rig = _swap_rig(model, list(range(model.num_cameras)))
+    rig = common_format_cameras(model, list(range(model.num_cameras)))
     if rig is None:
         return {}
     cams, fmt = rig

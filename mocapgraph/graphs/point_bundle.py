@@ -21,6 +21,7 @@ import numpy as np
 
 from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_ransac
 from mocapgraph.factors.keys import camera_key
+from mocapgraph.graphs.initialisation import common_format_cameras
 from mocapgraph.graphs.solver import SolverOptions, levenberg_marquardt
 from mocapgraph.graphs.state_model import Estimate, StateModel
 
@@ -128,7 +129,7 @@ class StaticRefinement:
         cameras: camera index → ``(4, 4)`` world_T_camera, in the frame of the gauge camera
             ``gauge[0]`` (held) with the distance to ``gauge[1]`` held.
         gauge: the two cameras.
-        fmt: the keypoint format adjusted on (the static cameras' most observed).
+        fmt: the keypoint format adjusted on (the one most static cameras observe).
         points: how many free points.
         reprojection_px: median pixel error of the free points after the adjustment.
     """
@@ -146,42 +147,31 @@ def refine_static_cameras(
     """The static cameras of a solved ``model`` adjusted on free points, from the solve's poses.
 
     The observations (labelled by the solve's ``codes``, :meth:`StateModel.relabelled`) of the
-    static cameras' most observed format are triangulated from ``estimate``'s poses (RANSAC at
+    static cameras in the format most of them observe
+    (:func:`~mocapgraph.graphs.initialisation.common_format_cameras`) are triangulated from ``estimate``'s poses (RANSAC at
     ``threshold_px``) and adjusted with the cameras (:func:`bundle_adjust`, Geman-McClure at
     ``gm_sigma_px``), the focal lengths as estimated. The camera seeing the most keypoints holds
     the gauge with the one farthest from it. Only static cameras that see :data:`MIN_POINTS` of
     those points take part; None with fewer than :data:`MIN_STATIC_CAMERAS` of them.
     """
-    seen = {o.camera for obs in model.states for o in obs if o.count}
-    static = [c for c, cam in enumerate(model.cameras) if not cam.moving and c in seen]
-    if len(static) < MIN_STATIC_CAMERAS:
+    rig = common_format_cameras(model, [c for c, cam in enumerate(model.cameras) if not cam.moving])
+    if rig is None:
         return None
+    static, fmt = rig
     labelled = model.relabelled(codes)
-    counts: dict[str, int] = {}
-    for obs in labelled.states:
-        for o in obs:
-            if o.camera in static:
-                counts[o.fmt] = counts.get(o.fmt, 0) + o.count
-    fmt = max(counts, key=counts.get)
-    N, K = model.num_states, next(o.observed.shape[0] for obs in labelled.states for o in obs if o.fmt == fmt)
-    x = np.full((len(static), N, K, 2), np.nan)
-    w = np.zeros((len(static), N, K))
-    for i, obs in enumerate(labelled.states):
-        for o in obs:
-            if o.camera in static and o.fmt == fmt and o.fraction == 0.0 and not w[static.index(o.camera), i].any():
-                x[static.index(o.camera), i], w[static.index(o.camera), i] = o.observed, np.where(o.weights >= MIN_CONFIDENCE, o.weights, 0.0)
+    views = np.stack([labelled.view_keypoints(c)[0] for c in static])  # (C, N, K, 3)
+    x, w = views[..., :2], np.nan_to_num(views[..., 2])
+    w[w < MIN_CONFIDENCE] = 0.0
     Ks = np.stack([model.cameras[c].K for c in static])
     Ks[:, :2, :2] *= np.exp(estimate.focal_log[static])[:, None, None]
-    poses = [estimate.cameras[c][0] for c in static]
-    points = triangulate_placed(poses, x, w, Ks, threshold_px, seed)
+    points = triangulate_placed([estimate.cameras[c][0] for c in static], x, w, Ks, threshold_px, seed)
     seen = (w > 0) & np.isfinite(points).all(-1)[None]
     # a camera with too few of the format's points would be a variable nothing holds
-    held = seen.sum(axis=(1, 2)) >= MIN_POINTS
-    if held.sum() < MIN_STATIC_CAMERAS:
+    keep = np.flatnonzero(seen.sum(axis=(1, 2)) >= MIN_POINTS)
+    if len(keep) < MIN_STATIC_CAMERAS:
         return None
-    if not held.all():
-        static, x, w, Ks, seen = [c for c, h in zip(static, held) if h], x[held], w[held], Ks[held], seen[held]
-        poses = [T for T, h in zip(poses, held) if h]
+    static, x, w, Ks, seen = [static[k] for k in keep], x[keep], w[keep], Ks[keep], seen[keep]
+    poses = [estimate.cameras[c][0] for c in static]
     a = int(np.argmax(seen.sum(axis=(1, 2))))
     b = int(np.argmax([np.linalg.norm(T[:3, 3] - poses[a][:3, 3]) for T in poses]))
     adjusted, points, _ = bundle_adjust(x, w, Ks, poses, points, (a, b), gm_sigma_px, max_iterations)
