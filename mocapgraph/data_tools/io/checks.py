@@ -109,22 +109,22 @@ def read_text(path: Path, error: type[MocapgraphError], what: str = "a UTF-8 tex
     return text
 
 
-def parse_toml(text: str, path: Path, error: type[MocapgraphError]) -> dict:
+def _parse(text: str, path: Path, error: type[MocapgraphError], kind: str, loads, decode_error: type[Exception]):
+    """``loads(text)``, its decoding errors and runaway nesting as one ``error`` naming ``path``."""
     try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise error(f"{path}: not valid TOML ({exc})") from None
+        return loads(text)
+    except decode_error as exc:
+        raise error(f"{path}: not valid {kind} ({exc})") from None
     except RecursionError:
-        raise error(f"{path}: not valid TOML (nested too deeply)") from None
+        raise error(f"{path}: not valid {kind} (nested too deeply)") from None
+
+
+def parse_toml(text: str, path: Path, error: type[MocapgraphError]) -> dict:
+    return _parse(text, path, error, "TOML", tomllib.loads, tomllib.TOMLDecodeError)
 
 
 def parse_json(text: str, path: Path, error: type[MocapgraphError]):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise error(f"{path}: not valid JSON ({exc})") from None
-    except RecursionError:
-        raise error(f"{path}: not valid JSON (nested too deeply)") from None
+    return _parse(text, path, error, "JSON", json.loads, json.JSONDecodeError)
 
 
 # ---------------------------------------------------------------------------------------------
