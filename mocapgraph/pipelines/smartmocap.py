@@ -525,8 +525,9 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             notes += [f"{fit.fmt} keypoints: the offsets of {', '.join(options.graph.offset_parts)} points estimated with the body: "
                       + ", ".join(f"{name} {100 * np.linalg.norm(v):.1f} cm" for name, v in fit.as_table().items() if part_name(name) in options.graph.offset_parts)
                       for fit in fits]  # fmt: skip
+    labels = bg.relabelled(estimate)
     if options.static_cameras == "points":
-        refined = refine_static_cameras(model, estimate, bg.relabelled(estimate), options.static_gm_sigma_px, REFINE_THRESHOLD_PX, REFINE_ITERATIONS)
+        refined = refine_static_cameras(model, estimate, labels, options.static_gm_sigma_px, REFINE_THRESHOLD_PX, REFINE_ITERATIONS)
         if refined is not None:
             cameras = aligned_to(refined.cameras, estimate)
             notes.append(static_refinement_note(model, estimate, refined, cameras))
@@ -537,7 +538,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             )
             estimate = bg.read(solved_final.values, estimate)
             estimate.log += list(solved_final.log)
-    labels = bg.relabelled(estimate)
+            labels = bg.relabelled(estimate)
     swaps = combined_swaps(model, before, labels)
     notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + camera_support_notes(bg)
     reprojection = reprojection_medians(body, model.relabelled(labels), estimate, offsets)
