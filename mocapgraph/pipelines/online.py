@@ -1178,4 +1178,6 @@ def summary(run: OnlineRun) -> str:
         f"p95 {lat['p95']} ms, max {lat['max']} ms\n"
         f"  observations {s['observations']}: used {s['used']} (late {s['late_used']}), dropped late {s['late_dropped']}, "
         f"gated {s['gated']}, unplaced {s['unplaced']}, empty {s['empty']}; relabelled {s['relabelled']}"
-    )
+    ) + "".join(
+        f"\n  camera {name}: prior from the GPS/IMU fusion for {n['fused']} frames, the onboard estimate for {n['self_pose']}" for name, n in s["camera_priors"].items()
+    ) + (f"\n  {s['coasting']} frames on a fusion coasting on the IMU (no GPS fix), {s['no_prior']} without a prior" if s["coasting"] or s["no_prior"] else "")
