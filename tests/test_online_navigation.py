@@ -65,3 +65,23 @@ def test_gps_outage_the_fused_priors_coast_and_the_loop_flags_it():
     assert error[(times > outage[0]) & (times < outage[1])].max() < 2.0
     during = (smoothed.timestamps > outage[0]) & (smoothed.timestamps < outage[1])
     assert _body_error_m(smoothed, capture, during) < 1.2 * _body_error_m(reference, capture, during)
+
+
+@pytest.mark.slow  # an AirCap bootstrap and a 7 s stream
+def test_auto_priors_take_the_onboard_estimate_where_logged_and_the_fusion_where_not():
+    """``camera_priors="auto"`` (default) with one UAV logging no onboard estimate: the two that
+    do rest on it alone; the third has no prior until its fusion's first solve (5 s: the IMU
+    aligned to the GPS track), its frames flagged ``no_camera_prior`` before and resting on the
+    fusion after, its camera then within 2.5 m of the truth."""
+    capture = synthesize("aircap", seed=0, duration_s=7.0)
+    frames = [StreamFrame(f.camera, f.timestamp, f.keypoints, f.box, {k: v for k, v in f.sensors.items() if f.camera != "uav3" or k != "self_pose"}, f.detector) for f in stream(capture)]
+    fusion = _run(capture, frames, OnlineOptions(lag_s=1.0))
+    counts = fusion.stats.camera_priors
+    assert counts["uav1"]["fused"] == counts["uav2"]["fused"] == 0 and counts["uav1"]["self_pose"] > 100 and counts["uav2"]["self_pose"] > 100
+    assert counts["uav3"]["self_pose"] == 0 and counts["uav3"]["fused"] > 30 and fusion.stats.no_prior > 50
+    _, smoothed = fusion.results()
+    flagged = smoothed.flags["no_camera_prior"]
+    start = capture.camera("uav3").timestamps[0]
+    assert flagged[(smoothed.timestamps > 1.2) & (smoothed.timestamps < start + 4.8)].mean() > 0.9 and not flagged[smoothed.timestamps > start + 5.3].any()
+    times, error = _camera_error_m(fusion, capture, "uav3", fusion.filtered_cameras)
+    assert times.min() > start + 4.9 and error.mean() < 2.5

@@ -23,7 +23,8 @@ state, times the mount: ``world_T_camera = world_T_vehicle · vehicle_T_camera``
 ``docs/vehicle-fusion.md`` has the details and the measured accuracy.
 
 :func:`online_track` gives the vehicle's own (onboard, online) estimate at the camera frames
-instead. Both take the vehicle's sensor logs as arrays: a mapping from the log's kind
+instead. :class:`IncrementalNavigation` runs the same fusion as the logs arrive (a fixed-lag
+smoother after a batch solve of the first second), for the online loop. Both take the vehicle's sensor logs as arrays: a mapping from the log's kind
 (``imu``, ``gps``, ``baro``, ``self_pose``) to a dict of arrays in the capture format's
 ``SENSOR_FIELDS`` layout (``t`` seconds, world ENU metres, vehicle-frame IMU readings).
 """
@@ -52,6 +53,7 @@ from mocapgraph.factors.navigation import (
     offset_chain_factor,
     preintegration_params,
 )
+from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation
 from mocapgraph.graphs.solver import SolverOptions, levenberg_marquardt, marginal_covariances
 
 logger = logging.getLogger(__name__)
@@ -760,8 +762,6 @@ class IncrementalNavigation:
     """
 
     def __init__(self, name: str, vehicle_T_camera, options: IncrementalOptions = IncrementalOptions()):
-        from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation
-
         options.check()
         self.name, self.options = name, options
         self.mount = as_checked_array(vehicle_T_camera, f"camera {name!r}: vehicle_T_camera", (4, 4))
