@@ -12,11 +12,14 @@ rigs the joint rotations' constant velocity too: what a state's later neighbours
 weak pose regulariser, and camera variables:
 
 - **AirCap rigs** (cameras on vehicles with a mount and sensor logs): a pose per camera frame near
-  the vehicle's onboard estimate at that time (the ``self_pose`` samples received so far, through
-  :func:`~mocapgraph.graphs.navigation.online_track`), through one offset per camera that carries
-  the estimate's slow drift (as :class:`~mocapgraph.pipelines.aircap.CameraPriors`), and
-  constant-pose smoothness between its frames (``cameras="refine"``); or held at that estimate
-  (``"prior"``). A static camera with a calibration is held at it.
+  its prior at that time, through one offset per camera that carries the prior's slow drift (as
+  :class:`~mocapgraph.pipelines.aircap.CameraPriors`), and constant-pose smoothness between its
+  frames (``cameras="refine"``); or held at the prior (``"prior"``). The prior
+  (``camera_priors``): the vehicle's onboard estimate (the ``self_pose`` samples received so far,
+  through :func:`~mocapgraph.graphs.navigation.online_track`), or its GPS/IMU fusion run on the
+  samples received so far (:class:`~mocapgraph.graphs.navigation.IncrementalNavigation`); a GPS
+  outage leaves that fusion coasting on the IMU (flag ``camera_prior_coasting``). A static camera
+  with a calibration is held at it.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable for the whole stream, a
   moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
   SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held.
