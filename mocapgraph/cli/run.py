@@ -142,7 +142,7 @@ def add_parsers(subparsers) -> None:
         parser.set_defaults(func=cmd_run)
 
     from mocapgraph.pipelines.online import CAMERA_MODES as ONLINE_CAMERAS
-    from mocapgraph.pipelines.online import RIGS, OnlineOptions
+    from mocapgraph.pipelines.online import PRIOR_SOURCES, RIGS, OnlineOptions
 
     online = command(
         run, "online", "replay a capture as a stream through the fixed-lag fusion; writes the smoothed trajectory at --out and "
@@ -155,6 +155,10 @@ def add_parsers(subparsers) -> None:
     flags.add("bootstrap_s", "seconds buffered and solved in batch before the loop starts", flag="--bootstrap")
     flags.add("rate_hz", "body states per second")
     flags.add("cameras", "aircap: per-frame camera variables near the onboard estimate, or held at it", choices=ONLINE_CAMERAS)
+    flags.add(
+        "camera_priors", "aircap: the UAV cameras' priors: the vehicle's GPS/IMU fusion run incrementally (fused), its onboard estimate "
+        "(self_pose), or the onboard estimate where logged, else the fusion (auto)", choices=PRIOR_SOURCES,
+    )  # fmt: skip
     flags.add("detector", "detector name", unset="each camera's first")
     online.add_argument("--realtime", action="store_true", help="replay at the capture's own rate")
     online.set_defaults(func=cmd_run_online)

@@ -39,7 +39,7 @@ from mocapgraph.graphs.initialisation import neutral_pose
 from mocapgraph.graphs.solver import solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.graphs.sync import SYNC_POLICIES
-from mocapgraph.pipelines.camera_priors import camera_priors
+from mocapgraph.pipelines.camera_priors import SOURCES, camera_priors
 from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import capture_state_model, detector_names
 from mocapgraph.pipelines.results import estimate_result, focal_notes, swap_notes
@@ -59,6 +59,9 @@ class AircapOptions:
 
     mode: str = "sequence"
     cameras: str = "refine"
+    # the UAV cameras' priors: "fused" (the offline GPS/IMU fusion) or "online" (the onboard
+    # estimate, self_pose); None: fused to refine the cameras, online to hold them ("fixed")
+    prior_source: str | None = None
     sync: str | None = None  # default: "closest" for per-frame (the thesis), "grid" for sequence
     grid_hz: float = 30.0  # body states per second with sync "grid"
     detectors: tuple[str, ...] | None = None
@@ -87,6 +90,8 @@ class AircapOptions:
             raise MocapgraphError(f"mode {self.mode!r}: choose one of {', '.join(MODES)}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
+        if self.prior_source not in (None, *SOURCES):
+            raise MocapgraphError(f"prior_source {self.prior_source!r}: choose one of {', '.join(SOURCES)}")
         if self.sync is not None and self.sync not in SYNC_POLICIES:
             raise MocapgraphError(f"sync {self.sync!r}: choose one of {', '.join(SYNC_POLICIES)}")
         if self.mode == "per-frame" and self.graph.pose_prior == "vae":
@@ -110,10 +115,11 @@ class AircapOptions:
 # Camera priors
 
 
-def camera_tracks(capture: Capture, mode: str) -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], list[str]]:
+def camera_tracks(capture: Capture, mode: str, source: str | None = None) -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], list[str]]:
     """Per usable camera (by index): prior world_T_camera ``(F_c, 4, 4)`` and covariance
-    ``(F_c, 6, 6)``; and notes on the cameras that have none."""
-    tracks, notes = camera_priors(capture, source="online" if mode == "fixed" else "fused")
+    ``(F_c, 6, 6)``; and notes on the cameras that have none. ``source``: as
+    :attr:`AircapOptions.prior_source`."""
+    tracks, notes = camera_priors(capture, source=source or ("online" if mode == "fixed" else "fused"))
     out = {}
     for c, cam in enumerate(capture.cameras):
         if cam.name in tracks:
@@ -311,7 +317,7 @@ def run_aircap(capture: Capture, options: AircapOptions | None = None, capture_l
     start_time = time.perf_counter()
     body = load_body_model()
     detectors = detector_names(capture, options.detectors)
-    tracks, camera_notes = camera_tracks(capture, options.cameras)
+    tracks, camera_notes = camera_tracks(capture, options.cameras, options.prior_source)
     notes = list(capture.notes) + camera_notes  # the loader's repairs first
     for note in notes:
         log.info("aircap: %s", note)
