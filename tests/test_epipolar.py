@@ -351,8 +351,9 @@ def test_track_tables_tell_where_a_cameras_swap_starts_and_ends(scene):
 
 def test_labelling_with_tracks_is_the_least_cost():
     """With each camera's track (:func:`track_tables`) in the objective, :func:`joint_labels` is
-    still the least-cost labelling over every one of two cameras' three frames (4⁶), and
-    :func:`decide_labels` the least-cost path of one camera."""
+    still the least-cost labelling over every one of two cameras' three frames (4⁶),
+    :func:`best_frames` leaves the middle frame at its best labelling given the others, and
+    :func:`decide_labels` finds the least-cost path of one camera."""
     rng = np.random.default_rng(6)
     S = len(SWAP_KINDS)
     tables = {(0, 1): rng.uniform(0.0, 12.0, (3, S, S))}
@@ -360,6 +361,9 @@ def test_labelling_with_tracks_is_the_least_cost():
     best = E.joint_labels(tables, (2, 3), tracks=tracks)
     costs = [E.labelling_cost(tables, np.reshape(flat, (2, 3)), tracks=tracks) for flat in itertools.product(range(S), repeat=6)]
     assert E.labelling_cost(tables, best, tracks=tracks) <= min(costs) + 1e-9
+    moved = E.best_frames(tables, rng.integers(0, S, (2, 3)), tracks=tracks)
+    trials = [np.column_stack([moved[:, 0], state, moved[:, 2]]) for state in itertools.product(range(S), repeat=2)]
+    assert E.labelling_cost(tables, moved, tracks=tracks) <= min(E.labelling_cost(tables, t, tracks=tracks) for t in trials) + 1e-9
     nats = rng.normal(0.0, 4.0, (4, S))
     got = E.decide_labels(nats, tracks=np.concatenate([tracks[0], tracks[1, :1]]))
 

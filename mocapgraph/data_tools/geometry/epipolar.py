@@ -17,6 +17,8 @@ frame (detectors swap in runs), and :func:`resolve_swaps` lowers it, one camera
 cameras all of them over the sequence (:func:`joint_labels`), alternating with
 new essential matrices on the new labels. A swap every camera shares fits as well as none: the
 skeleton's handedness and limbs (:func:`anatomy_scores`, :func:`absolute_labels`) decide those.
+With two cameras a swap of either fits alike; each camera's own 2D track, which jumps where a
+run starts and ends, tells whose (:func:`track_tables`, ``resolve_swaps(continuity=True)``).
 
 Arrays of a rig (``C`` cameras, ``N`` frames on one clock, ``K`` points of one format):
 
@@ -100,7 +102,7 @@ MIN_SWAP_POINTS = 4
 
 MAX_TRACK_GAP = 5
 """Frames without the person (a detector's misses) that :func:`track_tables` bridges at most:
-0.17 s at 30 fps, in which a person moves a few centimetres, a swap's jump tens of pixels."""
+0.17 s at 30 fps, over which the person's move in the image stays well below a swap's jump."""
 
 
 @dataclass(frozen=True)
@@ -641,13 +643,13 @@ def best_frames(tables: dict[tuple[int, int], np.ndarray], labels, kinds: Sequen
         misfit += table[:, states[:, a], states[:, b]]
     misfit += SWAP_NATS * np.count_nonzero(states, axis=1)
     out = labels.copy()
+    if tracks is not None:
+        ahead = np.concatenate([tracks[:, 1:], np.zeros_like(tracks[:, :1])], axis=1)  # into frame n + 1 (none past the last)
     for parity in (0, 1):
         padded = np.pad(out, ((0, 0), (1, 1)))
         before, after = padded[:, :-2].T, padded[:, 2:].T  # (N, C): each frame's neighbours
         cost = misfit + SWITCH_NATS * (np.sum(states[None] != before[:, None], axis=-1) + np.sum(states[None] != after[:, None], axis=-1))
-        if tracks is not None:
-            # frame n's track from frame n - 1 and into frame n + 1 (none past the last frame)
-            ahead = np.concatenate([tracks[:, 1:], np.zeros_like(tracks[:, :1])], axis=1)
+        if tracks is not None:  # frame n's track from frame n - 1 and into frame n + 1
             for c in range(C):
                 cost += tracks[c, np.arange(N)[:, None], before[:, c, None], states[None, :, c]]
                 cost += ahead[c, np.arange(N)[:, None], states[None, :, c], after[:, c, None]]
