@@ -317,3 +317,59 @@ def test_joint_labels_is_the_least_cost_labelling():
     best = E.joint_labels(tables, (2, 3))
     costs = [E.labelling_cost(tables, np.reshape(flat, (2, 3))) for flat in itertools.product(range(S), repeat=6)]
     assert E.labelling_cost(tables, best) <= min(costs) + 1e-9
+
+
+def test_track_tables_tell_where_a_cameras_swap_starts_and_ends(scene):
+    """One camera's own track, with a whole-body run in frames 30-49 and the person missed at 40:
+    the labels as detected jump where the run starts and ends, relabelled they go on; the frame
+    after the miss is compared with the one before it. The Viterbi on the tracks finds the run
+    with a weak swap prior (0.5 nats a frame); at the pairs' prior of 2 nats its two jumps (20
+    nats each here, 17 points) do not pay for 20 frames: the tracks tell where a camera's labels
+    change, the other cameras that they are wrong."""
+    x, truth = inject(scene["noisy"], {2: [(30, 20, "body")]})
+    x[2, 40] = np.nan
+    w = np.where(np.isfinite(x).all(-1), 1.0, 0.0)
+    tracks = E.track_tables(x, w, NAMES, cap_px=15.0)
+    assert tracks.shape == (4, 150, len(SWAP_KINDS), len(SWAP_KINDS))
+    # only the change counts: every labelling kept, and a swap or its undoing, cost alike
+    np.testing.assert_allclose(np.einsum("cnii->cni", tracks), np.repeat(tracks[:, :, :1, 0], len(SWAP_KINDS), axis=2))
+    np.testing.assert_allclose(tracks[..., 0, 1], tracks[..., 1, 0])
+    # an entry computed anew: each point's move less the mean move, truncated, in the log of its mean square
+    move = x[2, 31] - x[2, 30]
+    d = np.minimum(np.linalg.norm(move - move.mean(axis=0), axis=-1), 15.0)
+    np.testing.assert_allclose(tracks[2, 31, 0, 0], 0.5 * len(NAMES) * np.log(np.mean(d**2) + 0.25))
+    body = SWAP_KINDS.index("body")
+    jumps = tracks[2, :, 0, body] < tracks[2, :, 0, 0]
+    assert set(np.flatnonzero(jumps)) == {30, 50}
+    assert np.all(tracks[2, 40] == 0) and tracks[2, 41, 0, 0] < tracks[2, 41, 0, body]  # bridged from 39
+    none = np.zeros((150, len(SWAP_KINDS)))
+    np.testing.assert_array_equal(E.decide_labels(none, tracks=tracks[2], swap_nats=0.5), truth[2])
+    assert not np.any(E.decide_labels(none, tracks=tracks[2]))
+    assert not np.any(E.decide_labels(none, tracks=tracks[0], swap_nats=0.5))  # a clean camera stays as detected
+    assert np.all(E.track_tables(x, w, NAMES, cap_px=15.0, max_gap=0)[2, 41] == 0)
+
+
+def test_labelling_with_tracks_is_the_least_cost():
+    """With each camera's track (:func:`track_tables`) in the objective, :func:`joint_labels` is
+    still the least-cost labelling over every one of two cameras' three frames (4⁶),
+    :func:`best_frames` leaves the middle frame at its best labelling given the others, and
+    :func:`decide_labels` finds the least-cost path of one camera."""
+    rng = np.random.default_rng(6)
+    S = len(SWAP_KINDS)
+    tables = {(0, 1): rng.uniform(0.0, 12.0, (3, S, S))}
+    tracks = rng.uniform(0.0, 12.0, (2, 3, S, S))
+    best = E.joint_labels(tables, (2, 3), tracks=tracks)
+    costs = [E.labelling_cost(tables, np.reshape(flat, (2, 3)), tracks=tracks) for flat in itertools.product(range(S), repeat=6)]
+    assert E.labelling_cost(tables, best, tracks=tracks) <= min(costs) + 1e-9
+    moved = E.best_frames(tables, rng.integers(0, S, (2, 3)), tracks=tracks)
+    trials = [np.column_stack([moved[:, 0], state, moved[:, 2]]) for state in itertools.product(range(S), repeat=2)]
+    assert E.labelling_cost(tables, moved, tracks=tracks) <= min(E.labelling_cost(tables, t, tracks=tracks) for t in trials) + 1e-9
+    nats = rng.normal(0.0, 4.0, (4, S))
+    got = E.decide_labels(nats, tracks=np.concatenate([tracks[0], tracks[1, :1]]))
+
+    def cost(path):
+        padded = (0, *path, 0)
+        moves = sum(np.concatenate([tracks[0], tracks[1, :1]])[n, path[n - 1], path[n]] for n in range(1, len(path)))
+        return sum(nats[n, k] + (E.SWAP_NATS if k else 0.0) for n, k in enumerate(path)) + moves + E.SWITCH_NATS * sum(p != q for p, q in zip(padded, padded[1:]))
+
+    np.testing.assert_array_equal(got, min(itertools.product(range(S), repeat=4), key=cost))

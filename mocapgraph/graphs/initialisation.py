@@ -120,6 +120,24 @@ def robust_pose_mean(poses: np.ndarray) -> np.ndarray:
     return _rigid(rotation_mean(poses[inlier, :3, :3]), t[inlier].mean(axis=0))
 
 
+def robust_pose_track(poses: np.ndarray, known: np.ndarray, half_window: int, keep_within_rad: float | None = None) -> np.ndarray:
+    """``(T, 4, 4)``: at each frame, :func:`robust_pose_mean` of the ``known (T,)`` poses
+    ``(T, 4, 4)`` within ``half_window`` frames (the pose itself where none is known there): a
+    moving camera's per-frame poses with runs of outliers shorter than the window dropped. With
+    ``keep_within_rad``, a known pose whose rotation lies within that angle of its window's mean
+    is kept as it is (an accurate track keeps its detail; only its outliers are replaced)."""
+    out = np.array(poses, dtype=float, copy=True)
+    for t in range(len(poses)):
+        window = slice(max(0, t - half_window), t + half_window + 1)
+        if not known[window].any():
+            continue
+        mean = robust_pose_mean(poses[window][known[window]])
+        cos = (np.trace(mean[:3, :3].T @ out[t, :3, :3]) - 1.0) / 2.0
+        if not (keep_within_rad is not None and known[t] and np.arccos(np.clip(cos, -1.0, 1.0)) <= keep_within_rad):
+            out[t] = mean
+    return out
+
+
 def relative_cameras(views: list[ViewEstimate], moving: list[bool], reference: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Every camera's pose in the reference camera's frame, from the body both see.
 
@@ -444,17 +462,18 @@ def common_format_cameras(model: StateModel, cameras: list[int]) -> tuple[list[i
     return (cams, fmt) if len(cams) >= 2 else None
 
 
-def _rig_swaps(model: StateModel, cams: list[int], fmt: str, poses=None) -> dict[int, np.ndarray]:
+def _rig_swaps(model: StateModel, cams: list[int], fmt: str, poses=None, continuity: bool = False) -> dict[int, np.ndarray]:
     """:func:`~mocapgraph.data_tools.geometry.epipolar.resolve_swaps` on cameras ``cams``' keypoints
     of format ``fmt`` at every state (with their ``poses``, ``(C, 4, 4)`` or ``(C, N, 4, 4)``,
-    when given), as per camera ``(F_c,)`` codes, -1 for frames without an observation."""
+    when given; with each camera's track from state to state if ``continuity``), as per camera
+    ``(F_c,)`` codes, -1 for frames without an observation."""
     views = [model.view_keypoints(c)[0] for c in cams]
     x = np.stack([v[..., :2] for v in views])
     w = np.stack([np.nan_to_num(v[..., 2]) for v in views])
     Ks = np.stack([model.cameras[c].K for c in cams])
     names = BODY_KEYPOINT_NAMES if fmt == "body" else get_format(fmt).names
     threshold = SWAP_THRESHOLD_FRACTION * 2.0 * float(np.max(Ks[:, :2, 2]))
-    labels = resolve_swaps(x, w, Ks, names, threshold_px=threshold, poses=poses).labels  # (C, N) per state
+    labels = resolve_swaps(x, w, Ks, names, threshold_px=threshold, poses=poses, continuity=continuity).labels  # (C, N) per state
     out: dict[int, np.ndarray] = {}
     for row, c in enumerate(cams):
         codes = np.full(len(model.cameras[c].timestamps), -1, dtype=np.int8)
@@ -479,7 +498,7 @@ def view_swaps(model: StateModel) -> dict[int, np.ndarray]:
     return {} if rig is None else _rig_swaps(model, *rig)
 
 
-def posed_view_swaps(model: StateModel, cameras: list[np.ndarray]) -> dict[int, np.ndarray]:
+def posed_view_swaps(model: StateModel, cameras: list[np.ndarray], continuity: bool = False) -> dict[int, np.ndarray]:
     """Per camera, ``(F_c,)`` the left/right labelling of each of its frames that fits every
     other camera's epipolar geometry at that state, the geometry taken from the placed cameras'
     poses (``cameras``: per camera ``(F_c, 4, 4)`` world_T_camera, as
@@ -492,13 +511,18 @@ def posed_view_swaps(model: StateModel, cameras: list[np.ndarray]) -> dict[int, 
     rests on the cameras' relative rotations and the directions of their baselines, which a
     placement tens of centimetres off barely changes: on ``phones`` (10 s, seed 0), from a
     solve's poses 25-90 cm off, it found 94 % of the swapped camera-frames at 96 % precision, from
-    the true poses 95 % at 97 %. Cameras of another keypoint format are left as detected."""
+    the true poses 95 % at 97 %. Cameras of another keypoint format are left as detected.
+
+    With ``continuity``, each camera's own 2D track from state to state joins the evidence
+    (:func:`~mocapgraph.data_tools.geometry.epipolar.track_tables`): with two cameras the pair's
+    geometry tells that a frame's labels disagree but not whose, the jumps of a swapped camera's
+    track where its run starts and ends do."""
     rig = common_format_cameras(model, list(range(model.num_cameras)))
     if rig is None:
         return {}
     cams, fmt = rig
     poses = np.stack([_state_poses(model, c, cameras[c]) for c in cams])
-    return _rig_swaps(model, cams, fmt, poses)
+    return _rig_swaps(model, cams, fmt, poses, continuity)
 
 
 def _state_poses(model: StateModel, c: int, frames: np.ndarray) -> np.ndarray:

@@ -28,13 +28,28 @@ from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import PER_FRAME_CAMERA, Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions
-from mocapgraph.graphs.initialisation import INITIALISERS, fuse_bodies, fused_shape, relative_cameras, view_bodies, view_swaps
+from mocapgraph.graphs.initialisation import (
+    INITIALISERS,
+    fuse_bodies,
+    fused_shape,
+    posed_view_swaps,
+    relative_cameras,
+    robust_pose_track,
+    view_bodies,
+    view_swaps,
+)
 from mocapgraph.graphs.solver import held, solve_staged
-from mocapgraph.graphs.state_model import Estimate
+from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.observations import capture_state_model
 from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, swap_notes
 
 log = logging.getLogger(__name__)
+
+
+KEEP_SOLVED_RAD = np.radians(10.0)
+"""AirPose+'s camera poses within this angle of their window's robust mean are kept as solved
+by the swap check (5° off the truth in median on airpose); a camera taken round the person to
+explain a swap is replaced by the window's mean."""
 
 
 @dataclass
@@ -48,6 +63,14 @@ class AirposeOptions:
     refine: bool = True  # AirPose+ (False: the initialiser's estimate alone)
     min_confidence: float = 3.0  # summed keypoint confidence over the views a frame needs
     iterations: int = 30
+    # Two moving cameras' labels checked against their epipolar geometry, each camera's own 2D
+    # track telling which of the two swapped (graphs.initialisation.posed_view_swaps with
+    # continuity): first on the views' relative cameras (robustly smoothed over
+    # `swap_window_frames` each side), the views made again on the new labels; then on AirPose+'s
+    # cameras, the sequence solved again on them (with graph.swaps only).
+    posed_swaps: bool = True
+    swap_window_frames: int = 45
+    swap_rounds: int = 3
     detectors: tuple[str, ...] | None = None
     covariances: bool = True
     graph: GraphOptions = field(default_factory=GraphOptions)
@@ -58,6 +81,10 @@ class AirposeOptions:
             raise MocapgraphError(f"initialiser {self.initialiser!r}: choose one of {', '.join(INITIALISERS)}")
         if not (np.isfinite(self.min_confidence) and self.min_confidence >= 0):
             raise MocapgraphError(f"min_confidence: a finite number >= 0, got {self.min_confidence!r}")
+        if not (isinstance(self.swap_window_frames, int) and self.swap_window_frames >= 1):
+            raise MocapgraphError(f"swap_window_frames: an integer >= 1, got {self.swap_window_frames!r}")
+        if not (isinstance(self.swap_rounds, int) and self.swap_rounds >= 0):
+            raise MocapgraphError(f"swap_rounds: an integer >= 0, got {self.swap_rounds!r}")
 
 
 def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture_label: str = "") -> Result:
@@ -78,13 +105,21 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     reference_moves = full.cameras[0].moving
     model = full.select(np.flatnonzero(keep))
     before = view_swaps(model) if options.graph.swaps else {}  # on the cameras as captured: static pairs
-    model = model.relabelled(before).with_moving([cam.moving or reference_moves for cam in full.cameras])
+    detected = model.with_moving([cam.moving or reference_moves for cam in full.cameras])
+    model = detected.relabelled(before)
     notes = list(capture.notes)
     if (~keep).any():
         notes.append(f"{int((~keep).sum())} of {len(keep)} frames left out: total keypoint confidence below {options.min_confidence}")
     views, used = view_bodies(model, body, options.initialiser, options.regressor_variant)
-    notes.append(f"initialised from the {used}")
     ref_T_c, known = relative_cameras(views, [cam.moving for cam in model.cameras], 0)
+    if options.refine and options.graph.swaps and options.posed_swaps:
+        # A swapped view turns its PnP body round, and the camera with it, for the run's frames:
+        # the window's robust mean drops them.
+        before = _checked(detected, before, [model.frames_from_states(c, ref_T_c[c]) for c in range(model.num_cameras)], options.swap_window_frames, None)
+        model = detected.relabelled(before)
+        views, used = view_bodies(model, body, options.initialiser, options.regressor_variant)
+        ref_T_c, known = relative_cameras(views, [cam.moving for cam in model.cameras], 0)
+    notes.append(f"initialised from the {used}")
     placed = [bool(known[c].any()) for c in range(model.num_cameras)]
     for c in range(1, model.num_cameras):
         if not placed[c]:
@@ -92,7 +127,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     if sum(placed) == 1:
         notes.append("camera 1 alone: depth along its rays rests on the body's size and the priors; expect large covariances along them")
     notes.append("absolute scale: from the body model's size (shape prior) alone; the shape's covariance carries it")
-    model = model.only(placed)
+    model, detected = model.only(placed), detected.only(placed)
     fused = fuse_bodies(views, ref_T_c, known)
     cameras = [model.frames_from_states(c, ref_T_c[c]) for c in range(model.num_cameras)]
     estimate = Estimate(fused.camera_T_root, fused.pose, fused_shape(body, fused), cameras)
@@ -108,6 +143,22 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
         values = solved.values
         estimate = bg.read(values, estimate)
         estimate.log = list(solved.log)
+        for _ in range(options.swap_rounds if options.graph.swaps and options.posed_swaps else 0):
+            # The solve explains a run it did not relabel by taking the other camera round the
+            # person; its cameras elsewhere check the labels again, and the sequence is solved
+            # again on them, until they stay.
+            checked = _checked(detected, before, estimate.cameras, options.swap_window_frames, KEEP_SOLVED_RAD)
+            if all(np.array_equal(np.maximum(codes, 0), np.maximum(before.get(c, codes * 0), 0)) for c, codes in checked.items()):
+                break
+            before, model = checked, detected.relabelled(checked)
+            bg = BodyGraph(model, body, options.graph, fixed_cameras=bg.fixed_cameras)
+            graph, values = bg.sequence(estimate)
+            bg.relabel(False)  # held as checked: the solve's own choice would put the runs back
+            stages = bg.stages(options.iterations, bg.time_ordering(values))
+            solved = solve_staged(held(graph, values, bg.held_keys()), values, stages, progress="AirPose+ (relabelled)", project=bg.project_shape)
+            values = solved.values
+            estimate = bg.read(values, estimate)
+            estimate.log += list(solved.log)
         swaps = combined_swaps(model, before, bg.relabelled(estimate))
         notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate))
     seconds = time.perf_counter() - t_start
@@ -121,6 +172,14 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     result = _with_left_out(result, full.times, keep)
     result.parameters.update(focal_px=bg.focal_lengths(estimate) if options.refine else {}, initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes)
     return result
+
+
+def _checked(detected: StateModel, before: dict[int, np.ndarray], cameras: list[np.ndarray], half_window: int, keep_within_rad: float | None) -> dict[int, np.ndarray]:
+    """``before`` with every camera :func:`posed_view_swaps` checks (with continuity, on the
+    labels as detected) taking its codes, against ``cameras`` (per camera ``(F_c, 4, 4)``) each
+    robustly smoothed over ``half_window`` frames each side (:func:`robust_pose_track`)."""
+    smoothed = [robust_pose_track(poses, detected.frame_state[c] >= 0, half_window, keep_within_rad) for c, poses in enumerate(cameras)]
+    return {**before, **posed_view_swaps(detected, smoothed, continuity=True)}
 
 
 def _with_left_out(result: Result, times: np.ndarray, keep: np.ndarray) -> Result:

@@ -17,6 +17,8 @@ frame (detectors swap in runs), and :func:`resolve_swaps` lowers it, one camera
 cameras all of them over the sequence (:func:`joint_labels`), alternating with
 new essential matrices on the new labels. A swap every camera shares fits as well as none: the
 skeleton's handedness and limbs (:func:`anatomy_scores`, :func:`absolute_labels`) decide those.
+With two cameras a swap of either fits alike; each camera's own 2D track, which jumps where a
+run starts and ends, tells whose (:func:`track_tables`, ``resolve_swaps(continuity=True)``).
 
 Arrays of a rig (``C`` cameras, ``N`` frames on one clock, ``K`` points of one format):
 
@@ -97,6 +99,10 @@ _MIN_GAIN_NATS = 1e-6
 
 MIN_SWAP_POINTS = 4
 """Fewest co-visible correspondences of a pair in a frame for its labellings to be scored."""
+
+MAX_TRACK_GAP = 5
+"""Frames without the person (a detector's misses) that :func:`track_tables` bridges at most:
+0.17 s at 30 fps, over which the person's move in the image stays well below a swap's jump."""
 
 
 @dataclass(frozen=True)
@@ -371,6 +377,67 @@ def pair_tables(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Seq
     return tables
 
 
+def track_tables(x, w, names: Sequence[str], *, cap_px: float, max_gap: int = MAX_TRACK_GAP) -> np.ndarray:
+    """Each camera's own 2D track, in nats, under every combination of its labellings in two
+    consecutive frames: ``(C, N, S, S)`` at ``[c, n, i, j]`` with frame ``n - 1``'s points under
+    swap ``SWAP_KINDS[i]`` and frame ``n``'s under ``SWAP_KINDS[j]`` (``S = len(SWAP_KINDS)``).
+
+    A swap exchanges the left and right points in the image, so where a run starts or ends the
+    points as detected jump by the sides' separation, while between frames the person and the
+    camera move little; relabelled, the track goes on. This tells which camera of a pair swapped,
+    which the pair's epipolar geometry cannot (:func:`pair_tables` scores a swap of either camera
+    alike). The cost has :func:`pair_tables`' form, ``m/2 · log(mean(min(d, cap_px)²))`` over
+    the ``m`` points seen in both frames, ``d`` each point's move in pixels less the mean move
+    of them all (the camera's turn shifts the whole person; a permutation leaves the mean as it
+    is). Only the labels' change counts: ``[c, n, i, i]`` are equal for every ``i``.
+
+    A frame where the camera saw fewer than :data:`MIN_SWAP_POINTS` points (missed by the
+    detector) is bridged: frame ``n`` is compared with the last frame before it that has them,
+    up to ``max_gap`` frames back, under the label of frame ``n - 1`` (which the change prior
+    ties to the earlier frame's, having no evidence of its own). Frame 0, and frames with no
+    such predecessor, give 0.
+
+    Args:
+        x, w: ``(C, N, K, 2)`` pixels and ``(C, N, K)`` confidences (module docstring).
+        names: the format's point names.
+        cap_px: truncation of a point's move (a jump larger than this counts as this).
+        max_gap: frames without the person that a track bridges at most.
+    """
+    x = as_checked_array(x, "x (C, N, K, 2)", (None, None, None, 2), finite=False)
+    C, N, K = x.shape[:3]
+    w = np.where(np.isfinite(x).all(-1), as_checked_array(w, "w (C, N, K)", (C, N, K)), 0.0)
+    if len(names) != K:
+        raise MocapgraphError(f"names: {len(names)} point names for {K} keypoints")
+    perms = [swap_permutation(names, kind) for kind in SWAP_KINDS]
+    S = len(perms)
+    out = np.zeros((C, N, S, S))
+    if N < 2:
+        return out
+    # each frame's predecessor: the last earlier frame with enough points, within max_gap
+    tracked = (w > 0).sum(axis=-1) >= MIN_SWAP_POINTS
+    last = np.maximum.accumulate(np.where(tracked, np.arange(N), -1), axis=1)
+    prev = np.concatenate([np.full((C, 1), -1), last[:, :-1]], axis=1)
+    prev = np.where(np.arange(N) - prev <= max_gap + 1, prev, -1)
+    rows = np.arange(C)[:, None]
+    x0, w0 = x[rows, np.maximum(prev, 0)], np.where((prev >= 0)[..., None], w[rows, np.maximum(prev, 0)], 0.0)
+    seen = (w0 > 0) & (w > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        shift = np.where(seen[..., None], x - x0, 0.0).sum(axis=2, keepdims=True) / seen.sum(axis=-1)[..., None, None]
+    shift = np.nan_to_num(shift)  # frames that share no point with their predecessor score nothing
+    total, count = np.zeros((C, N, S, S)), np.zeros((C, N, S, S), dtype=int)
+    for i, pi in enumerate(perms):
+        for j, pj in enumerate(perms):
+            both = (w0[..., pi] > 0) & (w[..., pj] > 0)
+            d = np.minimum(np.linalg.norm(x[:, :, pj] - x0[:, :, pi] - shift, axis=-1), cap_px)
+            total[..., i, j] = np.where(both, d**2, 0.0).sum(axis=-1)
+            count[..., i, j] = both.sum(axis=-1)
+    most = count.max(axis=(2, 3), keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nats = 0.5 * most * np.log(total / count + _FLOOR_PX2)
+    out[:] = np.where((count >= MIN_SWAP_POINTS) & (most >= MIN_SWAP_POINTS), nats, 0.0)
+    return out
+
+
 def swap_costs(tables: dict[tuple[int, int], np.ndarray], labels) -> np.ndarray:
     """``(C, N, len(SWAP_KINDS))`` nats: how badly each labelling of each camera-frame fits the
     other cameras' epipolar geometry under their current ``labels (C, N)``: the sum of its
@@ -386,14 +453,19 @@ def swap_costs(tables: dict[tuple[int, int], np.ndarray], labels) -> np.ndarray:
     return nats
 
 
-def labelling_cost(tables: dict[tuple[int, int], np.ndarray], labels, *, swap_nats: float = SWAP_NATS, switch_nats: float = SWITCH_NATS) -> float:
+def labelling_cost(
+    tables: dict[tuple[int, int], np.ndarray], labels, *, swap_nats: float = SWAP_NATS, switch_nats: float = SWITCH_NATS, tracks: np.ndarray | None = None
+) -> float:
     """The objective :func:`resolve_swaps` lowers: every pair's misfit (:func:`pair_tables`) at
     every frame, plus ``swap_nats`` per swapped camera-frame and ``switch_nats`` per change of a
     camera's labelling from one frame to the next (frames before the first and after the last
-    count as unswapped)."""
+    count as unswapped), plus, given ``tracks`` (:func:`track_tables`), each camera's own track
+    from frame to frame under its labels."""
     labels = np.asarray(labels, dtype=int)
     frames = np.arange(labels.shape[1])
     misfit = sum(float(table[frames, labels[a], labels[b]].sum()) for (a, b), table in tables.items())
+    if tracks is not None and labels.shape[1] > 1:
+        misfit += float(sum(tracks[c, frames[1:], row[:-1], row[1:]].sum() for c, row in enumerate(labels)))
     padded = np.pad(labels, ((0, 0), (1, 1)))
     return misfit + swap_nats * np.count_nonzero(labels) + switch_nats * np.count_nonzero(np.diff(padded, axis=1))
 
@@ -410,11 +482,15 @@ def _kind_codes(kinds: Sequence[str]) -> np.ndarray:
     return np.array([0] + [SWAP_KINDS.index(k) for k in kinds])
 
 
-def decide_labels(nats, kinds: Sequence[str] = SWAP_KINDS[1:], *, swap_nats: float = SWAP_NATS, switch_nats: float = SWITCH_NATS) -> np.ndarray:
+def decide_labels(
+    nats, kinds: Sequence[str] = SWAP_KINDS[1:], *, swap_nats: float = SWAP_NATS, switch_nats: float = SWITCH_NATS, tracks: np.ndarray | None = None
+) -> np.ndarray:
     """``(N,)`` label codes of one camera's frames from their costs ``nats (N, len(SWAP_KINDS))``
     (:func:`swap_costs`): the sequence of labellings, among ``"none"`` and ``kinds``, of least
     total cost plus ``swap_nats`` per swapped frame and ``switch_nats`` per change between
-    consecutive frames (Viterbi). A frame without a cost (NaN) is decided by its neighbours."""
+    consecutive frames (Viterbi), plus, given this camera's ``tracks (N, S, S)`` (a camera's
+    slice of :func:`track_tables`), its track under the labels. A frame without a cost (NaN) is
+    decided by its neighbours."""
     codes = _kind_codes(kinds)
     unary = _unary(nats, codes, swap_nats)
     N, S = unary.shape
@@ -426,7 +502,7 @@ def decide_labels(nats, kinds: Sequence[str] = SWAP_KINDS[1:], *, swap_nats: flo
     best = unary[0] + change[0]
     back = np.zeros((N, S), dtype=int)
     for n in range(1, N):
-        step = best[:, None] + change  # [from, to]
+        step = best[:, None] + change + (0.0 if tracks is None else tracks[n][np.ix_(codes, codes)])  # [from, to]
         back[n] = np.argmin(step, axis=0)
         best = step[back[n], np.arange(S)] + unary[n]
     path = np.zeros(N, dtype=int)
@@ -506,7 +582,9 @@ def _unit(v: np.ndarray) -> np.ndarray:
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def absolute_labels(labels, seen, scores: dict[str, np.ndarray], decided: dict[str, np.ndarray], kinds: Sequence[str] = SWAP_KINDS[1:]) -> np.ndarray:
+def absolute_labels(
+    labels, seen, scores: dict[str, np.ndarray], decided: dict[str, np.ndarray], kinds: Sequence[str] = SWAP_KINDS[1:], *, fewer_swaps: bool = True
+) -> np.ndarray:
     """``(C, N)`` labels with, in each frame, a swap of one kind in every camera added or taken
     away where the body says so.
 
@@ -515,7 +593,9 @@ def absolute_labels(labels, seen, scores: dict[str, np.ndarray], decided: dict[s
     see the person, ``seen (C, N)``) carry only ``"none"`` and one kind, the labelling and its
     complement are told apart by the skeleton's ``scores[kind] (N,)`` (:func:`anatomy_scores`
     under the current labels) where ``decided[kind] (N,)``: a negative score means the complement;
-    elsewhere the one with fewer swaps is kept. Cameras that do not see the person get label 0.
+    elsewhere the one with fewer swaps is kept (with ``fewer_swaps``; without, the labels as they
+    are: where each camera's own track has decided them, :func:`track_tables`, a frame's flip
+    alone would break every track). Cameras that do not see the person get label 0.
     """
     seen = np.asarray(seen, dtype=bool)
     labels = np.where(seen, np.asarray(labels, dtype=int), 0)
@@ -523,7 +603,7 @@ def absolute_labels(labels, seen, scores: dict[str, np.ndarray], decided: dict[s
     for code in _kind_codes(kinds)[1:]:
         kind = SWAP_KINDS[code]
         only = np.all(~seen | (labels == 0) | (labels == code), axis=0)
-        flip = only & np.where(decided[kind], scores[kind] < 0, 2 * np.sum(labels == code, axis=0) > count)
+        flip = only & np.where(decided[kind], scores[kind] < 0, fewer_swaps & (2 * np.sum(labels == code, axis=0) > count))
         labels[:, flip] = np.where(seen[:, flip], code - labels[:, flip], 0)
     return labels
 
@@ -546,11 +626,12 @@ def pair_anatomy(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Se
     return scores, decided
 
 
-def best_frames(tables: dict[tuple[int, int], np.ndarray], labels, kinds: Sequence[str] = SWAP_KINDS[1:]) -> np.ndarray:
+def best_frames(tables: dict[tuple[int, int], np.ndarray], labels, kinds: Sequence[str] = SWAP_KINDS[1:], tracks: np.ndarray | None = None) -> np.ndarray:
     """``(C, N)`` labels where each frame, given its neighbours, takes the labelling of all its
-    cameras at once that lowers :func:`labelling_cost` the most (even frames first, then odd ones
-    against the new even ones). Where several cameras are wrong together, no single camera's
-    relabelling helps; this move can. It tries ``(1 + len(kinds))^C`` labellings per frame."""
+    cameras at once that lowers :func:`labelling_cost` (with ``tracks``, if given) the most (even
+    frames first, then odd ones against the new even ones). Where several cameras are wrong
+    together, no single camera's relabelling helps; this move can. It tries
+    ``(1 + len(kinds))^C`` labellings per frame."""
     labels = np.asarray(labels, dtype=int)
     C, N = labels.shape
     codes = _kind_codes(kinds)
@@ -562,10 +643,16 @@ def best_frames(tables: dict[tuple[int, int], np.ndarray], labels, kinds: Sequen
         misfit += table[:, states[:, a], states[:, b]]
     misfit += SWAP_NATS * np.count_nonzero(states, axis=1)
     out = labels.copy()
+    if tracks is not None:
+        ahead = np.concatenate([tracks[:, 1:], np.zeros_like(tracks[:, :1])], axis=1)  # into frame n + 1 (none past the last)
     for parity in (0, 1):
         padded = np.pad(out, ((0, 0), (1, 1)))
         before, after = padded[:, :-2].T, padded[:, 2:].T  # (N, C): each frame's neighbours
         cost = misfit + SWITCH_NATS * (np.sum(states[None] != before[:, None], axis=-1) + np.sum(states[None] != after[:, None], axis=-1))
+        if tracks is not None:  # frame n's track from frame n - 1 and into frame n + 1
+            for c in range(C):
+                cost += tracks[c, np.arange(N)[:, None], before[:, c, None], states[None, :, c]]
+                cost += ahead[c, np.arange(N)[:, None], states[None, :, c], after[:, c, None]]
         current = np.sum(position[out.T] * len(codes) ** np.arange(C - 1, -1, -1), axis=1)
         frames = np.arange(parity, N, 2)
         best = np.argmin(cost[frames], axis=1)
@@ -574,10 +661,10 @@ def best_frames(tables: dict[tuple[int, int], np.ndarray], labels, kinds: Sequen
     return out
 
 
-def joint_labels(tables: dict[tuple[int, int], np.ndarray], shape: tuple[int, int], kinds: Sequence[str] = SWAP_KINDS[1:]) -> np.ndarray:
-    """``(C, N)`` = ``shape`` labels of least :func:`labelling_cost` over every joint labelling of
-    the cameras at every frame (Viterbi over ``(1 + len(kinds))^C`` states per frame: exact, for
-    a few cameras)."""
+def joint_labels(tables: dict[tuple[int, int], np.ndarray], shape: tuple[int, int], kinds: Sequence[str] = SWAP_KINDS[1:], tracks: np.ndarray | None = None) -> np.ndarray:
+    """``(C, N)`` = ``shape`` labels of least :func:`labelling_cost` (with ``tracks``, if given)
+    over every joint labelling of the cameras at every frame (Viterbi over ``(1 + len(kinds))^C``
+    states per frame: exact, for a few cameras)."""
     C, N = shape
     codes = _kind_codes(kinds)
     states = np.array(list(itertools.product(codes, repeat=C)))  # (J, C)
@@ -592,6 +679,8 @@ def joint_labels(tables: dict[tuple[int, int], np.ndarray], shape: tuple[int, in
     back = np.zeros((N, len(states)), dtype=np.int32)
     for n in range(1, N):
         step = best[:, None] + change
+        if tracks is not None:
+            step = step + sum(tracks[c, n][np.ix_(states[:, c], states[:, c])] for c in range(C))
         back[n] = np.argmin(step, axis=0)
         best = step[back[n], np.arange(len(states))] + misfit[n]
     path = np.zeros(N, dtype=int)
@@ -611,6 +700,7 @@ def resolve_swaps(
     kinds: Sequence[str] = SWAP_KINDS[1:],
     max_rounds: int = 5,
     poses=None,
+    continuity: bool = False,
 ) -> SwapCheck:
     """Essential matrices and left/right labels of a rig, estimated in turn until they agree.
 
@@ -637,6 +727,9 @@ def resolve_swaps(
         poses: world_T_camera of placed cameras, ``(C, 4, 4)`` (static) or ``(C, N, 4, 4)`` (per
             frame, for moving ones): their geometry is taken from the poses
             (:func:`pair_from_poses`) and only the labels are decided.
+        continuity: add each camera's own 2D track to the objective (:func:`track_tables`):
+            with two cameras the epipolar geometry says that a frame's labels disagree but not
+            whose, the jumps of a camera's track where its run starts and ends do.
     """
     x, w, Ks = _check_rig(x, w, Ks)
     if max_rounds < 1:
@@ -644,31 +737,33 @@ def resolve_swaps(
     C, N, _ = w.shape
     labels = np.zeros((C, N), dtype=int)
     seen = (w > 0).any(axis=-1)
+    tracks = track_tables(x, w, names, cap_px=threshold_px) if continuity else None
 
     def relabel(pairs) -> np.ndarray:
         new = labels.copy()
         tables = pair_tables(x, w, Ks, pairs, names, cap_px=threshold_px)
+        cost = lambda labels: labelling_cost(tables, labels, tracks=tracks)  # noqa: E731
         for _ in range(_MAX_MOVES):
             nats = swap_costs(tables, new)
-            proposals = [decide_labels(nats[c], kinds) for c in range(C)]
-            gains = [labelling_cost(tables, new) - labelling_cost(tables, np.vstack([new[:c], p[None], new[c + 1 :]])) for c, p in enumerate(proposals)]
+            proposals = [decide_labels(nats[c], kinds, tracks=None if tracks is None else tracks[c]) for c in range(C)]
+            gains = [cost(new) - cost(np.vstack([new[:c], p[None], new[c + 1 :]])) for c, p in enumerate(proposals)]
             c = int(np.argmax(gains))
             if gains[c] > _MIN_GAIN_NATS:
                 new[c] = proposals[c]
                 continue
             if C <= MAX_JOINT_CAMERAS:
-                joint = best_frames(tables, new, kinds)
-                if labelling_cost(tables, joint) < labelling_cost(tables, new) - _MIN_GAIN_NATS:
+                joint = best_frames(tables, new, kinds, tracks)
+                if cost(joint) < cost(new) - _MIN_GAIN_NATS:
                     new = joint
                     continue
             break
         if C <= MAX_SEQUENCE_CAMERAS:
-            joint = joint_labels(tables, new.shape, kinds)
-            if labelling_cost(tables, joint) < labelling_cost(tables, new) - _MIN_GAIN_NATS:
+            joint = joint_labels(tables, new.shape, kinds, tracks)
+            if cost(joint) < cost(new) - _MIN_GAIN_NATS:
                 new = joint
         # The body's side may cost a prior or a change in time: it comes last, after the moves
         # (the next round starts from it).
-        return absolute_labels(new, seen, *pair_anatomy(x, w, Ks, pairs, names, new), kinds)
+        return absolute_labels(new, seen, *pair_anatomy(x, w, Ks, pairs, names, new), kinds, fewer_swaps=not continuity)
 
     if poses is not None:
         # calibrated cameras: their geometry is known, only the labels are to find
@@ -718,5 +813,6 @@ __all__ = [
     "sampson_px",
     "pair_tables",
     "swap_costs",
+    "track_tables",
     "triangulate_pair",
 ]
