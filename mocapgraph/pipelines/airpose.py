@@ -56,9 +56,12 @@ explain a swap is replaced by the window's mean."""
 class AirposeOptions:
     """Parameters of AirPose / AirPose+ (units in the names)."""
 
-    # The mean body's PnP: as a starting point it beat the fusion regressor (whose root is ~17°
-    # off per view) on airpose, before and after the bundle adjustment (bench airpose).
-    initialiser: str = "pnp"
+    # The fusion regressor (AirPose's own initialiser). Before the two cameras' swaps were undone
+    # the mean body's PnP started AirPose+ better; since, from the regressor it ends nearer on
+    # 10 s airpose captures, seeds 0-5 (MPE 0.49/0.53/0.53/0.31/0.68/0.37 m against
+    # 0.80/0.69/0.69/1.09/0.56/0.48 from PnP; camera 2 0.57/1.13/0.94/0.79/0.77/1.01 m against
+    # 1.03/1.14/1.34/3.02/0.92/1.05; seeds 3-5 measured after the choice was made on 0-2).
+    initialiser: str = "regressor"
     regressor_variant: str = "full"  # the regressor's ablation variants: "no_exchange", "no_crop"
     refine: bool = True  # AirPose+ (False: the initialiser's estimate alone)
     min_confidence: float = 3.0  # summed keypoint confidence over the views a frame needs
