@@ -194,3 +194,23 @@ def test_camera_centre_alignment_weighs_cameras_equally():
         align_camera_centres([est[:1], est[1:2], np.full((1, 3), np.nan)], [ref[:1], ref[1:2], ref[2:3]])
     with pytest.raises(MocapgraphError, match="collinear"):
         align_camera_centres([np.array([[0.0, 0, k]]) for k in range(3)], [np.array([[1.0, 0, k]]) for k in range(3)])
+
+
+def test_static_cameras_also_scored_after_a_similarity_over_the_camera_centres(rig):
+    """The body turned by 0.02 rad about its joints' centroid, the cameras exact, all moved by a
+    similarity: aligned by the joints, each camera lands turned the other way about that centroid
+    (its error by hand); aligned by the camera centres, exactly on the truth."""
+    turn = rotvec_to_matrix(np.array([0.0, 0.02, 0.0]))
+    res = perfect_result(rig, "ground_plane")
+    centroid = res.joints.reshape(-1, 3).mean(0)
+    res.joints = (res.joints - centroid) @ turn.T + centroid
+    R, t = rotvec_to_matrix(np.array([0.3, 0.2, -2.0])), np.array([1.0, 4.0, -0.5])
+    ev = evaluate(similarity_moved(res, 1.3, R, t), rig)
+    centres = np.stack([p[0, :3, 3] for p in rig.ground_truth.cameras.values()])
+    by_hand = np.linalg.norm((centres - centroid) @ turn - (centres - centroid), axis=1).mean()  # turn⁻¹ = turnᵀ
+    assert ev.metrics["static_mcpe_m"] == pytest.approx(by_hand, rel=1e-6) and by_hand > 0.01
+    assert ev.metrics["static_mcoe_rad"] == pytest.approx(0.02, rel=1e-6)
+    assert ev.metrics["static_mcpe_centres_m"] < 1e-9 and ev.metrics["static_mcoe_centres_rad"] < 1e-9
+    two = perfect_result(rig, "ground_plane")
+    two.cameras = {n: two.cameras[n] for n in ("cam0", "cam1")}
+    assert "static_mcpe_m" in (m := evaluate(two, rig).metrics) and "static_mcpe_centres_m" not in m  # two centres fix no similarity
