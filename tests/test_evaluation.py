@@ -196,10 +196,11 @@ def test_camera_centre_alignment_weighs_cameras_equally():
         align_camera_centres([np.array([[0.0, 0, k]]) for k in range(3)], [np.array([[1.0, 0, k]]) for k in range(3)])
 
 
-def test_static_cameras_also_scored_after_a_similarity_over_the_camera_centres(rig):
+def test_static_cameras_also_scored_as_a_rig_after_their_own_procrustes(rig):
     """The body turned by 0.02 rad about its joints' centroid, the cameras exact, all moved by a
     similarity: aligned by the joints, each camera lands turned the other way about that centroid
-    (its error by hand); aligned by the camera centres, exactly on the truth."""
+    (its error by hand); the static cameras as a rig, after their own Procrustes, exactly on the
+    truth. A rig with one camera 10 cm off: the Procrustes spreads it over the rig (by hand)."""
     turn = rotvec_to_matrix(np.array([0.0, 0.02, 0.0]))
     res = perfect_result(rig, "ground_plane")
     centroid = res.joints.reshape(-1, 3).mean(0)
@@ -210,7 +211,18 @@ def test_static_cameras_also_scored_after_a_similarity_over_the_camera_centres(r
     by_hand = np.linalg.norm((centres - centroid) @ turn - (centres - centroid), axis=1).mean()  # turn⁻¹ = turnᵀ
     assert ev.metrics["static_mcpe_m"] == pytest.approx(by_hand, rel=1e-6) and by_hand > 0.01
     assert ev.metrics["static_mcoe_rad"] == pytest.approx(0.02, rel=1e-6)
-    assert ev.metrics["static_mcpe_centres_m"] < 1e-9 and ev.metrics["static_mcoe_centres_rad"] < 1e-9
+    assert ev.metrics["static_mcpe_procrustes_m"] < 1e-9 and ev.metrics["static_mcoe_procrustes_rad"] < 1e-9
+
     two = perfect_result(rig, "ground_plane")
     two.cameras = {n: two.cameras[n] for n in ("cam0", "cam1")}
-    assert "static_mcpe_m" in (m := evaluate(two, rig).metrics) and "static_mcpe_centres_m" not in m  # two centres fix no similarity
+    two.cameras["cam1"].world_T_camera[:, :3, 3] += [0.1, 0.0, 0.0]
+    m = evaluate(two, rig).metrics
+    # orientations exact: rotation identity; centroids matched, the scale the baselines' ratio
+    ref = centres[:2] - centres[:2].mean(0)
+    est = ref + [[-0.05, 0, 0], [0.05, 0, 0]]
+    scaled = est * np.linalg.norm(ref) / np.linalg.norm(est)
+    assert m["static_mcpe_procrustes_m"] == pytest.approx(np.linalg.norm(scaled - ref, axis=1).mean(), rel=1e-9)
+    assert m["static_mcoe_procrustes_rad"] < 1e-12
+    one = perfect_result(rig, "ground_plane")
+    one.cameras = {"cam0": one.cameras["cam0"]}
+    assert "static_mcpe_procrustes_m" not in evaluate(one, rig).metrics  # one camera: no rig to align

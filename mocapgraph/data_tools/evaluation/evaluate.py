@@ -193,20 +193,21 @@ def _coverage(moved: Result, capture: Capture, level: float) -> dict[str, float]
     return out
 
 
-def _static_after_centres(est_cams, ref_cams, static_est, static_ref) -> dict[str, float]:
-    """``static_mcpe_centres_m`` / ``static_mcoe_centres_rad``: the static cameras after one
-    similarity over the centres of every camera (``align_camera_centres``, each camera weighing
-    the same), as ``eval --reference`` scores static cameras. The cameras' geometry among
-    themselves, free of the result's alignment: fitted to the joints of a person who barely
-    moves (3 s of ``phones``: 9-15 cm of horizontal spread), that alignment's rotation is a
-    degree or two off, which alone puts a camera 8 m away 15-25 cm off. Nothing with fewer than
-    three cameras or collinear centres. All arrays ``(N, 4, 4)`` world_T_camera."""
+def _static_rig(static_est: list[np.ndarray], static_ref: list[np.ndarray]) -> dict[str, float]:
+    """``static_mcpe_procrustes_m`` / ``static_mcoe_procrustes_rad``: the static cameras as one
+    rig after its own Procrustes (one pose per camera; the rotation from their orientations, the
+    scale and translation from their centres, ``procrustes_trajectory``). The rig's geometry,
+    free of the result's alignment: fitted to the joints of a person who barely moves (3 s of
+    ``phones``, three of the bench's takes: 9-17 cm of horizontal spread), that alignment's rotation is a degree or two
+    off, which alone puts a camera 8 m away 15-25 cm off. Nothing with fewer than two static
+    cameras. Arrays ``(N_c, 4, 4)`` world_T_camera per static camera."""
+    est, ref = np.stack([e[0] for e in static_est]), np.stack([r[0] for r in static_ref])
     try:
-        fit = align_camera_centres([e[:, :3, 3] for e in est_cams], [r[:, :3, 3] for r in ref_cams])
+        fit = procrustes_trajectory(est[:, :3, 3], ref[:, :3, 3], est[:, :3, :3], ref[:, :3, :3], rotation_from="orientations")
     except MocapgraphError:
         return {}
-    est, ref = fit.apply_pose(np.concatenate(static_est)), np.concatenate(static_ref)
-    return {"static_mcpe_centres_m": float(M.mcpe_m(est, ref)), "static_mcoe_centres_rad": float(M.mcoe_rad(est, ref))}
+    moved = fit.apply_pose(est)
+    return {"static_mcpe_procrustes_m": float(M.mcpe_m(moved, ref)), "static_mcoe_procrustes_rad": float(M.mcoe_rad(moved, ref))}
 
 
 def evaluate(result: Result, capture: Capture) -> Evaluation:
@@ -271,7 +272,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
     if static_est:
         out["static_mcpe_m"] = float(M.mcpe_m(np.concatenate(static_est), np.concatenate(static_ref)))
         out["static_mcoe_rad"] = float(M.mcoe_rad(np.concatenate(static_est), np.concatenate(static_ref)))
-        out.update(_static_after_centres(est_cams, ref_cams, static_est, static_ref))
+        out.update(_static_rig(static_est, static_ref))
     if moving_est:
         # after the result's alignment only (the ground-plane frame's similarity), not per camera
         out["moving_mcpe_m"] = float(M.mcpe_m(np.concatenate([e for e, _ in moving_est]), np.concatenate([r for _, r in moving_est])))
