@@ -198,10 +198,14 @@ def _static_rig(static_est: list[np.ndarray], static_ref: list[np.ndarray]) -> d
     rig after its own Procrustes (one pose per camera; the rotation from their orientations, the
     scale and translation from their centres, ``procrustes_trajectory``). The rig's geometry,
     free of the result's alignment: fitted to the joints of a person who barely moves (3 s of
-    ``phones``, three of the bench's takes: 9-17 cm of horizontal spread), that alignment's rotation is a degree or two
-    off, which alone puts a camera 8 m away 15-25 cm off. Nothing with fewer than two static
-    cameras. Arrays ``(N_c, 4, 4)`` world_T_camera per static camera."""
-    est, ref = np.stack([e[0] for e in static_est]), np.stack([r[0] for r in static_ref])
+    ``phones``, three of the bench's takes: 9-17 cm of horizontal spread), that alignment's
+    rotation is a degree or two off, which alone puts a camera 8 m away 15-25 cm off. Nothing
+    with fewer than two static cameras with a frame. Arrays ``(N_c, 4, 4)`` world_T_camera per
+    static camera."""
+    pairs = [(e[0], r[0]) for e, r in zip(static_est, static_ref) if len(e)]
+    if len(pairs) < 2:
+        return {}
+    est, ref = np.stack([e for e, _ in pairs]), np.stack([r for _, r in pairs])
     try:
         fit = procrustes_trajectory(est[:, :3, 3], ref[:, :3, 3], est[:, :3, :3], ref[:, :3, :3], rotation_from="orientations")
     except MocapgraphError:
