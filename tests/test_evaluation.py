@@ -226,3 +226,6 @@ def test_static_cameras_also_scored_as_a_rig_after_their_own_procrustes(rig):
     one = perfect_result(rig, "ground_plane")
     one.cameras = {"cam0": one.cameras["cam0"]}
     assert "static_mcpe_procrustes_m" not in evaluate(one, rig).metrics  # one camera: no rig to align
+    late = perfect_result(rig, "ground_plane")
+    late.cameras["cam1"] = CameraTrack(late.cameras["cam1"].timestamps + 100.0, late.cameras["cam1"].world_T_camera)
+    assert evaluate(late, rig).metrics["static_mcpe_procrustes_m"] < 1e-9  # a camera with no frame to compare is left out
