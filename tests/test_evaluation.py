@@ -194,3 +194,38 @@ def test_camera_centre_alignment_weighs_cameras_equally():
         align_camera_centres([est[:1], est[1:2], np.full((1, 3), np.nan)], [ref[:1], ref[1:2], ref[2:3]])
     with pytest.raises(MocapgraphError, match="collinear"):
         align_camera_centres([np.array([[0.0, 0, k]]) for k in range(3)], [np.array([[1.0, 0, k]]) for k in range(3)])
+
+
+def test_static_cameras_also_scored_as_a_rig_after_their_own_procrustes(rig):
+    """The body turned by 0.02 rad about its joints' centroid, the cameras exact, all moved by a
+    similarity: aligned by the joints, each camera lands turned the other way about that centroid
+    (its error by hand); the static cameras as a rig, after their own Procrustes, exactly on the
+    truth. A rig with one camera 10 cm off: the Procrustes spreads it over the rig (by hand)."""
+    turn = rotvec_to_matrix(np.array([0.0, 0.02, 0.0]))
+    res = perfect_result(rig, "ground_plane")
+    centroid = res.joints.reshape(-1, 3).mean(0)
+    res.joints = (res.joints - centroid) @ turn.T + centroid
+    R, t = rotvec_to_matrix(np.array([0.3, 0.2, -2.0])), np.array([1.0, 4.0, -0.5])
+    ev = evaluate(similarity_moved(res, 1.3, R, t), rig)
+    centres = np.stack([p[0, :3, 3] for p in rig.ground_truth.cameras.values()])
+    by_hand = np.linalg.norm((centres - centroid) @ turn - (centres - centroid), axis=1).mean()  # turn⁻¹ = turnᵀ
+    assert ev.metrics["static_mcpe_m"] == pytest.approx(by_hand, rel=1e-6) and by_hand > 0.01
+    assert ev.metrics["static_mcoe_rad"] == pytest.approx(0.02, rel=1e-6)
+    assert ev.metrics["static_mcpe_procrustes_m"] < 1e-9 and ev.metrics["static_mcoe_procrustes_rad"] < 1e-9
+
+    two = perfect_result(rig, "ground_plane")
+    two.cameras = {n: two.cameras[n] for n in ("cam0", "cam1")}
+    two.cameras["cam1"].world_T_camera[:, :3, 3] += [0.1, 0.0, 0.0]
+    m = evaluate(two, rig).metrics
+    # orientations exact: rotation identity; centroids matched, the scale the baselines' ratio
+    ref = centres[:2] - centres[:2].mean(0)
+    est = ref + [[-0.05, 0, 0], [0.05, 0, 0]]
+    scaled = est * np.linalg.norm(ref) / np.linalg.norm(est)
+    assert m["static_mcpe_procrustes_m"] == pytest.approx(np.linalg.norm(scaled - ref, axis=1).mean(), rel=1e-9)
+    assert m["static_mcoe_procrustes_rad"] < 1e-12
+    one = perfect_result(rig, "ground_plane")
+    one.cameras = {"cam0": one.cameras["cam0"]}
+    assert "static_mcpe_procrustes_m" not in evaluate(one, rig).metrics  # one camera: no rig to align
+    late = perfect_result(rig, "ground_plane")
+    late.cameras["cam1"] = CameraTrack(late.cameras["cam1"].timestamps + 100.0, late.cameras["cam1"].world_T_camera)
+    assert evaluate(late, rig).metrics["static_mcpe_procrustes_m"] < 1e-9  # a camera with no frame to compare is left out

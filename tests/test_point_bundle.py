@@ -103,15 +103,39 @@ def test_the_solve_labels_are_applied(rig):
     assert ignored.reprojection_px > plain.reprojection_px
 
 
-def test_fewer_than_three_static_cameras_seeing_the_person_give_none(rig):
+def relative_pose_errors(a: np.ndarray, b: np.ndarray, true_a: np.ndarray, true_b: np.ndarray) -> tuple[float, float]:
+    """Radians between ``b``'s orientation relative to ``a`` and the truth's, and between the
+    directions of their baselines seen from ``a``: the two cameras' geometry, any gauge."""
+    rel, true_rel = np.linalg.inv(a) @ b, np.linalg.inv(true_a) @ true_b
+    turn = np.linalg.norm(Rotation.from_matrix(rel[:3, :3].T @ true_rel[:3, :3]).as_rotvec())
+    u, v = rel[:3, 3] / np.linalg.norm(rel[:3, 3]), true_rel[:3, 3] / np.linalg.norm(true_rel[:3, 3])
+    return float(turn), float(np.arccos(np.clip(u @ v, -1.0, 1.0)))
+
+
+def test_two_static_cameras_facing_each_other_are_adjusted(rig):
+    """Two static cameras 141° apart seen from the person, from poses a few centimetres and
+    degrees off: their relative pose comes back towards the truth, the gauge camera and their
+    distance held. Two 44° apart, or one, give none; a moving camera takes no part."""
     model, truth = rig
     codes = {c: np.zeros(len(cam.timestamps), dtype=np.int8) for c, cam in enumerate(model.cameras)}
-    two = model.only([True, False, True, False])
-    assert refine_static_cameras(two, estimate_with(two, truth), codes, 10.0, 15.0, 50) is None
-    three = model.only([True, False, True, True])
-    assert sorted(refine_static_cameras(three, estimate_with(three, truth), codes, 10.0, 15.0, 50).cameras) == [0, 2, 3]
-    moving = replace(model, cameras=[replace(cam, moving=c == 1) for c, cam in enumerate(model.cameras)])
-    assert sorted(refine_static_cameras(moving, estimate_with(moving, truth), codes, 10.0, 15.0, 50).cameras) == [0, 2, 3]
+    facing = model.only([True, False, False, True])
+    start = perturbed(truth, seed=3)
+    refined = refine_static_cameras(facing, estimate_with(facing, start), codes, 10.0, 15.0, 50)
+    assert sorted(refined.cameras) == [0, 3]
+    a, b = refined.gauge
+    np.testing.assert_allclose(refined.cameras[a], start[a], atol=1e-5)
+    distance = np.linalg.norm(refined.cameras[0][:3, 3] - refined.cameras[3][:3, 3])
+    assert distance == pytest.approx(np.linalg.norm(start[0][:3, 3] - start[3][:3, 3]), abs=1e-5)
+    before = relative_pose_errors(start[0], start[3], truth[0], truth[3])
+    after = relative_pose_errors(refined.cameras[0], refined.cameras[3], truth[0], truth[3])
+    assert before[0] > 0.02 and before[1] > 0.01  # the start is off (guards the test itself)
+    assert after[0] < before[0] / 2 and after[1] < before[1] / 3, (before, after)
+    side_by_side = model.only([True, True, False, False])
+    assert refine_static_cameras(side_by_side, estimate_with(side_by_side, start), codes, 10.0, 15.0, 50) is None
+    one = model.only([True, False, False, False])
+    assert refine_static_cameras(one, estimate_with(one, truth), codes, 10.0, 15.0, 50) is None
+    moving = replace(model, cameras=[replace(cam, moving=c in (1, 2)) for c, cam in enumerate(model.cameras)])
+    assert sorted(refine_static_cameras(moving, estimate_with(moving, start), codes, 10.0, 15.0, 50).cameras) == [0, 3]
 
 
 def test_the_estimated_focal_lengths_are_used(rig):

@@ -4,8 +4,9 @@ SmartMocap scored its moving cameras against COLMAP.
 A reference lives in its own world (COLMAP's: arbitrary origin, orientation and scale), so every
 comparison first aligns one side onto the other by a similarity, then measures MCPE/MCOE:
 
-- a moving camera: SmartMocap's normalised Procrustes of that camera's track alone (positions and
-  orientations, :func:`~mocapgraph.data_tools.evaluation.alignment.procrustes_trajectory`);
+- a moving camera: SmartMocap's normalised Procrustes of that camera's track alone, its rotation
+  from the orientations (:func:`~mocapgraph.data_tools.evaluation.alignment.procrustes_trajectory`,
+  as ``eval``'s own-Procrustes metrics);
 - a static camera: its track has no spread to fit a similarity to, so it is compared after one
   similarity over the centres of all cameras (Umeyama, every camera weighing the same,
   :func:`~mocapgraph.data_tools.evaluation.alignment.align_camera_centres`), which needs
@@ -103,7 +104,7 @@ def compare_tracks(
             continue
         if moving[n] and len(a) >= MIN_TRACK_FRAMES:
             try:
-                fit = procrustes_trajectory(a[:, :3, 3], b[:, :3, 3], a[:, :3, :3], b[:, :3, :3])
+                fit = procrustes_trajectory(a[:, :3, 3], b[:, :3, 3], a[:, :3, :3], b[:, :3, :3], rotation_from="orientations")
                 how = "procrustes"
             except MocapgraphError as exc:
                 out[n] = CameraScore(True, len(a), np.nan, np.nan, f"not evaluable: {exc}")
