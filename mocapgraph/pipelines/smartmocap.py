@@ -549,13 +549,47 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         "smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(replace(options, checkpoint=None)), capture_label, cameras=placed_cameras, swaps=swaps
     )
     if options.covariances:
-        result.covariances.update(bg.covariances(graph, solved_final.values, estimate))
+        cov_bg, cov_graph, cov_values = definition_graph(bg, options, learned, estimate, solved_final.values, offsets, imu, tracks)
+        result.covariances.update(cov_bg.covariances(cov_graph, cov_values, estimate))
+        result.parameters["variance_factors"] = {g: round(float(s2), 4) for g, s2 in cov_bg.variance_factors.items()}
     result.parameters.update(
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes,
         focal_px=bg.focal_lengths(estimate), reprojection_px=reprojection,
         keypoint_offsets_m={fit.fmt: fit.as_table() for fit in fits} if options.keypoint_offsets else {},
     )
     return result
+
+
+def definition_graph(
+    bg: BodyGraph, options: SmartmocapOptions, learned: LearnedPriors, estimate: Estimate, solved: gtsam.Values, offsets: dict, imu: dict,
+    tracks: ReferenceTracks | None,
+) -> tuple[BodyGraph, gtsam.NonlinearFactorGraph, gtsam.Values]:  # fmt: skip
+    """The final pass's graph (of ``bg``, solved at ``estimate``, all of its variables in
+    ``solved``) with every detector point's definition offset a variable (``θ ~ N(current,
+    offset_sigma_m²)``, left and right mirrored, at the offsets the solve used) and its values:
+    the graph the covariances come from.
+
+    A detector's points are not the body's joints, and by how much is known only to within
+    ``offset_sigma_m``; held at one value, the offsets' uncertainty is missing from every
+    marginal, while it is the largest error the body carries (docs/detector_faults.md: 1.1 →
+    2.5 cm MPJPE). Shared by all frames, it does not average out over them as the detector's
+    noise does; as variables, the graph knows that. Built as the final pass's, the labels chosen
+    at the robust scale the solve ended with; nothing is solved on it."""
+    graph_options = replace(bg.options, offsets="estimate", offset_parts=None)
+    out = BodyGraph(bg.model, bg.body, graph_options, learned=learned, keypoint_offsets=offsets, imu=imu)
+    graph, values = sequence_graph(out, estimate, options.gauge_sigmas)
+    if tracks is not None:
+        tracks.add_to(graph, bg.model)
+    out.scale.sigma_px = bg.scale.sigma_px
+    # the solve's values (its priors' latents too), the offsets' parameters the new variables
+    merged = gtsam.Values(solved)
+    for key in solved.keys():
+        if not values.exists(key) or chr(gtsam.Symbol(key).chr()) == "k":
+            merged.erase(key)
+    for key in values.keys():
+        if not merged.exists(key):
+            merged.insert(key, values.atVector(key))
+    return out, graph, merged
 
 
 def camera_support_notes(bg: BodyGraph) -> list[str]:
