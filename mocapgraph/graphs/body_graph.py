@@ -603,7 +603,7 @@ class BodyGraph:
         return out
 
     def covariances(
-        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, estimate: Estimate, cameras: bool = True, calibrate: bool = True
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, estimate: Estimate, cameras: bool = True, calibrate: bool = False
     ) -> dict[str, np.ndarray]:
         """Marginal covariances at the solution: ``joints (N, 22, 3, 3)`` m², ``root (N, 6, 6)``,
         ``shape (S, S)`` and, with ``cameras``, ``camera:<name> (M, 6, 6)`` at each of the
@@ -613,7 +613,8 @@ class BodyGraph:
         variance factor (:func:`~mocapgraph.graphs.uncertainty.variance_factors`, the
         reprojection factors' measured robustly), then joints, root and cameras taken into the
         datum of a similarity over all joints (:class:`~mocapgraph.graphs.uncertainty.SimilarityDatum`),
-        the frame any comparison with another frame aligns by; the shape's as it is. The factors
+        the frame any comparison with another frame aligns by (a world pinned to a body
+        state, as SmartMocap's; not a world of its own such as AirCap's GPS frame); the shape's as it is. The factors
         are kept in ``self.variance_factors``."""
         calibration = calibrated(graph, values, {g for g in factor_groups(graph) if "r" in g and "c" in g}) if calibrate else None
         marginals = gtsam.Marginals(calibration.linear if calibrate else graph.linearize(values), values)

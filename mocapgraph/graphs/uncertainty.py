@@ -55,16 +55,24 @@ def joint_covariances(
 # σ, the priors' σ) and only in the gauge the graph fixes. Neither holds: the keypoints' definitions
 # differ from the body's joints, the motion prior misfits motion it never saw, and the world frame
 # is pinned to the first body state while any comparison with another frame (``eval``'s similarity
-# over all joints) removes a similarity. The two corrections below use the solved graph alone.
+# over all joints) removes a similarity. The corrections below (docs/uncertainty.md) use the
+# solved graph alone: each factor group's variance measured from its residuals, and the
+# covariances taken into the datum of that similarity.
 
-VARIANCE_SAMPLES = 16
-"""Samples of the posterior for the groups' redundancies: a group of ``m_g`` rows gets its trace
-to about ``±√(2/(16·m_g))`` relative (the reprojection factors' tens of thousands of rows: 0.3 %)."""
+VARIANCE_SAMPLES = 32
+"""Samples of the posterior for the groups' redundancies: the trace a group spends on the solution,
+``tr(A_g Σ A_gᵀ)``, to about ``±√(2·spent/32)`` (the reprojection factors: about ±5 of their
+thousands of redundant rows)."""
 VARIANCE_ITERATIONS = 1
 """Variance-component iterations (each a sparse factorisation and the samples' solves): one step
 from unit factors; only groups whose variance exceeds their noise models' are changed (below)."""
 MIN_REDUNDANCY = 5.0
 """A group with less redundancy than this says nothing about its own variance: kept at 1."""
+MAX_REDUNDANCY_ERROR = 0.1
+"""A group whose redundancy the samples measure to worse than this (relative standard error) is
+kept at 1. A prior spends most of its rows on the solution: its redundancy is a small difference of
+large numbers, and from a few samples it could come out near 0 (a motion prior's factor 256 on one
+take, from 16 samples)."""
 _CHI2_2_MEDIAN = 2.0 * np.log(2.0)
 
 
@@ -160,7 +168,8 @@ def variance_factors(
     the kernel already set aside (its residual saturates at the kernel's scale) would otherwise
     inflate every good keypoint's variance; a trailing odd row of one of its factors (a
     relabelling's cost) is no measurement and left out. A group with less than
-    :data:`MIN_REDUNDANCY` keeps 1. No group goes below ``floor``: by default a group is never
+    :data:`MIN_REDUNDANCY`, or whose redundancy the samples do not measure to within
+    :data:`MAX_REDUNDANCY_ERROR`, keeps 1. No group goes below ``floor``: by default a group is never
     trusted beyond its noise models. The priors' residuals are the motion itself, not draws of
     their noise: a smooth take would otherwise tighten the smoothness terms and with them every
     marginal (measured on a walk: every prior group 0.05-0.5, joints' coverage 0.73 → 0.35).
@@ -173,13 +182,15 @@ def variance_factors(
         for g, r in rows.items():
             scale[r] = 1.0 / np.sqrt(s2[g])
         A, lu = _information(system, scale)
-        draws = lu.solve(np.asarray(A.T @ rng.standard_normal((A.shape[0], samples))))
+        noise = rng.standard_normal((A.shape[0], samples))
+        draws = np.column_stack([lu.solve(np.asarray(A.T @ noise[:, k])) for k in range(samples)])  # one at a time: SuperLU is slower on blocks
         spent = np.asarray(A @ draws) ** 2
         out = {}
         for g, r in rows.items():
-            redundancy = len(r) - spent[r].sum() / samples
+            per_draw = spent[r].sum(0)
+            redundancy = len(r) - per_draw.mean()
             b = system.b[r] * scale[r]
-            if redundancy < MIN_REDUNDANCY:
+            if redundancy < MIN_REDUNDANCY or per_draw.std() / np.sqrt(samples) > MAX_REDUNDANCY_ERROR * redundancy:
                 out[g] = 1.0
             elif g in robust:
                 per_keypoint = (b.reshape(-1, 2) ** 2).sum(1)
