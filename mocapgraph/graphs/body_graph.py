@@ -55,7 +55,7 @@ from mocapgraph.factors.smoothness import (
 from mocapgraph.graphs.camera_imu import PHONE_GYRO_NOISE, CameraImu, bias_prior, imu_factor
 from mocapgraph.graphs.solver import annealed_stages
 from mocapgraph.graphs.state_model import Estimate, Observation, StateModel
-from mocapgraph.graphs.uncertainty import calibrated, factor_groups, joint_covariances, joints_datum, joints_in_datum, poses_in_datum
+from mocapgraph.graphs.uncertainty import calibrated, factor_groups, joint_covariances, joints_datum, joints_in_datum, poses_in_datum, with_shape_cross
 from mocapgraph.priors.motion_windows import WINDOW
 
 POSE_PRIORS = ("none", "gmm", "vae")
@@ -633,7 +633,10 @@ class BodyGraph:
                 [cache[k] if k in cache else cache.setdefault(k, marginals.marginalCovariance(k)) for k in keys]
             )
         if calibrate:
-            datum = joints_datum(calibration, fk, [root_key(i) for i in range(n)], [pose_key(i) for i in range(n)], self.shape_key)
+            roots, poses = [root_key(i) for i in range(n)], [pose_key(i) for i in range(n)]
+            if self.shape_key is not None:
+                out["joints"] = with_shape_cross(calibration, fk, roots, poses, self.shape_key, out["joints"])
+            datum = joints_datum(calibration, fk, roots, poses, self.shape_key)
             out["joints"] = joints_in_datum(datum, fk.joints, out["joints"])
             out["root"] = poses_in_datum(datum, calibration, [root_key(i) for i in range(n)], estimate.roots, out["root"])
             for c, keys in camera_keys.items():

@@ -334,6 +334,26 @@ def joints_datum(calibration: Calibration, fk, roots_keys: list[int], pose_keys:
     return datum
 
 
+def with_shape_cross(calibration: Calibration, fk, root_keys: list[int], pose_keys: list[int], shape: int, joints_cov: np.ndarray) -> np.ndarray:
+    """``joints_cov (N, 22, 3, 3)`` of :func:`joint_covariances` (the shape an independent term)
+    with each state's cross-covariance with the shape added: ``S`` solves with the factorisation
+    give the shape's whole column block. The datum needs it: the shape is mostly the scene's
+    scale, which the similarity removes, so the neglected term no longer stays small beside what
+    is left (it made joints' covariances indefinite, measured on rich)."""
+    system = calibration.system
+    S = system.columns[shape][1]
+    unit = np.zeros((system.n, S))
+    unit[system.cols(shape), np.arange(S)] = 1.0
+    column = calibration.lu.solve(unit)  # Σ[:, shape]
+    out = joints_cov.copy()
+    d = fk.d_joints.reshape(len(root_keys), NUM_JOINTS, 3, -1)
+    for i, (r, q) in enumerate(zip(root_keys, pose_keys)):
+        cross = column[np.concatenate([system.cols(r), system.cols(q)])]  # (69, S)
+        term = d[i, ..., :69] @ cross @ np.swapaxes(d[i, ..., 69:], -1, -2)  # (22, 3, 3)
+        out[i] += term + np.swapaxes(term, -1, -2)
+    return out
+
+
 def joints_in_datum(datum: SimilarityDatum, joints: np.ndarray, joints_cov: np.ndarray) -> np.ndarray:
     """``joints_cov (N, 22, 3, 3)`` of ``joints (N, 22, 3)`` in ``datum`` (built by :func:`joints_datum` on them)."""
     G = similarity_jacobian((joints - datum.centroid).reshape(-1, 3)).reshape(joints.shape[:2] + (3, 7))
