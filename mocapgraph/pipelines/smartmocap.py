@@ -131,7 +131,7 @@ class SmartmocapOptions:
     # factor that puts 95 % of their errors inside the 95 % ellipsoids. The cameras' errors there
     # are 3-6x their σ: biases (a detector's person size, the swaps' residue) the graph has no
     # variable for.
-    covariance_model_error: tuple[float, float, float] = (3.5, 22.5, 13.0)
+    covariance_model_error: tuple[float, float, float] = (3.7, 22.5, 13.0)
     # The shape estimated: with several views it is observable, and on a CMU walk seen by the rich
     # rig it halved the root orientation error (RA-MPJPE 3.7 -> 2.1 cm) and brought the scene's
     # scale within 4.4 % instead of 7.2 % for the held average body (measured). AirPose's two far
