@@ -139,9 +139,11 @@ def test_single_static_camera_says_what_it_cannot_determine(capture, solved):
     result, m = run(cameras_only(capture, {"cam1"}))
     notes = " ".join(result.parameters["notes"])
     assert "a single camera" in notes and "absolute scale" in notes
-    # The body's size, the only scale, is less certain from one view than from eight (1.75 against
-    # 1.18 cm, measured).
-    assert height_std_m(result) > 1.3 * height_std_m(solved[0])
+    # The body's size, the only scale, is less certain from one view than from eight: 7.3 against
+    # 6.5 cm, measured (1.75 against 1.18 before the keypoints' definitions were variables of the
+    # covariances: unknown to 1.5 cm, their points' heights trade with the legs' length in every
+    # view alike, and no number of views pins that down).
+    assert height_std_m(result) > 1.1 * height_std_m(solved[0])
     assert m["pa_mpjpe_m"] < 0.08
 
 

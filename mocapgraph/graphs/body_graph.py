@@ -55,7 +55,7 @@ from mocapgraph.factors.smoothness import (
 from mocapgraph.graphs.camera_imu import PHONE_GYRO_NOISE, CameraImu, bias_prior, imu_factor
 from mocapgraph.graphs.solver import annealed_stages
 from mocapgraph.graphs.state_model import Estimate, Observation, StateModel
-from mocapgraph.graphs.uncertainty import joint_covariances
+from mocapgraph.graphs.uncertainty import calibrated, factor_groups, joint_covariances, joints_datum, joints_in_datum, poses_in_datum, with_shape_cross
 from mocapgraph.priors.motion_windows import WINDOW
 
 POSE_PRIORS = ("none", "gmm", "vae")
@@ -249,6 +249,8 @@ class BodyGraph:
             self.imu_steps[c] = [(int(a), int(b)) for a, b in zip(frames[:-1], frames[1:]) if log.covers(times[a], times[b])]
         # per state, its reprojection factors' labellings and the observations they cover
         self.labellings: dict[int, list[tuple[Labelling, list[Observation]]]] = {}
+        # per factor group, its variance factor, once calibrated covariances were computed
+        self.variance_factors: dict[str, float] = {}
 
     # -- variables ------------------------------------------------------------------------------
 
@@ -600,19 +602,45 @@ class BodyGraph:
         out.update(shape_key(), clamped)
         return out
 
-    def covariances(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, estimate: Estimate, cameras: bool = True) -> dict[str, np.ndarray]:
+    def covariances(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, estimate: Estimate, cameras: bool = True, calibrate: bool = False
+    ) -> dict[str, np.ndarray]:
         """Marginal covariances at the solution: ``joints (N, 22, 3, 3)`` m², ``root (N, 6, 6)``,
         ``shape (S, S)`` and, with ``cameras``, ``camera:<name> (M, 6, 6)`` at each of the
-        camera's frames in the model (Pose3 tangents, rotation first)."""
-        marginals = gtsam.Marginals(graph.linearize(values), values)
+        camera's frames in the model (Pose3 tangents, rotation first).
+
+        With ``calibrate`` (docs/uncertainty.md): each factor group's noise scaled by its
+        variance factor (:func:`~mocapgraph.graphs.uncertainty.variance_factors`, the
+        reprojection factors' measured robustly), then joints, root and cameras taken into the
+        datum of a similarity over all joints (:class:`~mocapgraph.graphs.uncertainty.SimilarityDatum`),
+        the frame any comparison with another frame aligns by (a world pinned to a body
+        state, as SmartMocap's; not a world of its own such as AirCap's GPS frame); the shape's as it is. The factors
+        are kept in ``self.variance_factors``."""
+        calibration = calibrated(graph, values, {g for g in factor_groups(graph) if "r" in g and "c" in g}) if calibrate else None
+        marginals = gtsam.Marginals(calibration.linear if calibrate else graph.linearize(values), values)
+        n = self.model.num_states
+        fk = self.body.forward(estimate.shape, estimate.roots, estimate.poses.reshape(n, NUM_JOINTS - 1, 3), jacobians=True)
         out = {}
-        out["joints"], out["root"] = joint_covariances(self.body, marginals, estimate.roots, estimate.poses, estimate.shape)
+        out["joints"], out["root"] = joint_covariances(self.body, marginals, estimate.roots, estimate.poses, estimate.shape, fk=fk)
         if self.shape_key is not None:
             out["shape"] = np.asarray(marginals.marginalCovariance(shape_key()))
+        camera_keys = {}
         for c in self.estimated if cameras else []:
             cache: dict[int, np.ndarray] = {}
             keys = [self.model.camera_var(c, j) for j in self.model.camera_frames(c)]
+            camera_keys[c] = keys
             out[f"camera:{self.model.cameras[c].name}"] = np.stack(
                 [cache[k] if k in cache else cache.setdefault(k, marginals.marginalCovariance(k)) for k in keys]
             )
+        if calibrate:
+            roots, poses = [root_key(i) for i in range(n)], [pose_key(i) for i in range(n)]
+            if self.shape_key is not None:
+                out["joints"] = with_shape_cross(calibration, fk, roots, poses, self.shape_key, out["joints"])
+            datum = joints_datum(calibration, fk, roots, poses, self.shape_key)
+            out["joints"] = joints_in_datum(datum, fk.joints, out["joints"])
+            out["root"] = poses_in_datum(datum, calibration, [root_key(i) for i in range(n)], estimate.roots, out["root"])
+            for c, keys in camera_keys.items():
+                name = f"camera:{self.model.cameras[c].name}"
+                out[name] = poses_in_datum(datum, calibration, keys, estimate.cameras[c][self.model.camera_frames(c)], out[name])
+            self.variance_factors = calibration.factors
         return out
