@@ -112,10 +112,16 @@ class OnlineOptions:
     # near the onboard estimate drifted with the body's whole-body relabellings
     cameras: str = "prior"
     detector: str | None = None  # default: each camera's first detector
-    # An uncalibrated rig's static cameras after the bootstrap: held at its estimate, or variables
-    # all along ("refine": every update then re-eliminates them with the whole window, measured
-    # 3-4x slower on rich; docs/online.md).
-    static_cameras: str = "hold"
+    # An uncalibrated rig's static cameras after the bootstrap: variables all along ("refine"),
+    # each under a prior at the bootstrap's estimate (``static_camera_sigmas``, radians and metres),
+    # so that every body state that leaves the window leaves its information on them; or held at
+    # the bootstrap's estimate ("hold"). Without the prior "refine" diverged: the only gauge was the
+    # first root's prior, weak in tilt and height (offline's ground term is not in the loop), and the
+    # first update moved the cameras 0.3-1.3 m (rich 10 s: smoothed MPJPE 0.48 m). With it, rich
+    # 10 s (smoothed, static cameras' MCPE / MPJPE): hold 18.2 / 23.0 mm, refine 12.7 / 21.8 mm
+    # (seed 1: 25.1 / 25.3 and 12.6 / 24.4 mm), for ~1.3 ms more CPU per update (docs/online.md).
+    static_cameras: str = "refine"
+    static_camera_sigmas: tuple[float, float] = (0.01, 0.03)
     # No relinearisation: with the pose GMM and the re-acquisition it changed no error measured
     # (rich, aircap, a person out of view) and was the p95 (docs/online.md)
     relinearisation: Relinearisation = field(default_factory=lambda: Relinearisation(enabled=False))
@@ -178,6 +184,9 @@ class OnlineOptions:
             raise MocapgraphError(f"rig {self.rig!r}: choose one of {', '.join(RIGS)}")
         if self.static_cameras not in ("hold", "refine"):
             raise MocapgraphError(f"static_cameras {self.static_cameras!r}: choose hold or refine")
+        sigmas = self.static_camera_sigmas
+        if not (isinstance(sigmas, (tuple, list)) and len(sigmas) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in sigmas)):
+            raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
         for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s", "prior_timeout_s"):
@@ -367,6 +376,7 @@ class OnlineFusion:
         self._bootstrap_states = 0
         self._seed_cameras: dict[int, dict[float, np.ndarray]] = {}  # camera → {frame time: pose}
         self._static_keys: dict[int, int] = {}  # uncalibrated static camera → its key
+        self._static_sigmas: dict[int, tuple[float, float]] = {}  # its prior's (rad, m) about where it was placed
         self._offsets: set[int] = set()
         self._fixed: dict[int, np.ndarray] = {}  # calibrated static camera → world_T_camera
         self._self_pose: dict[int, deque] = {c: deque() for c in range(len(self.rig.cameras))}
@@ -553,6 +563,7 @@ class OnlineFusion:
                     self._fixed[c] = track.world_T_camera[0]
                     continue
                 self._static_keys[c] = camera_key(c, 0)
+                self._static_sigmas[c] = o.static_camera_sigmas
             self._seed_cameras[c] = {float(t): T for t, T in zip(track.timestamps, track.world_T_camera)}
         if self.kind == "smartmocap":
             self._gauge = Estimate(est.roots[:1], est.poses[:1], self.shape, [])
@@ -709,8 +720,10 @@ class OnlineFusion:
         if c in self._static_keys:
             key = self._static_keys[c]
             if not (self.smoother.holds(key) or self._pending_values.exists(key)):
-                self._pending_values.insert(key, gtsam.Pose3(next(iter(self._seed_cameras[c].values()))))
+                seed = next(iter(self._seed_cameras[c].values()))
+                self._pending_values.insert(key, gtsam.Pose3(seed))
                 self._pending_stamps[key] = t
+                self._pending.add(camera_prior_factor(key, seed, sigmas=self._static_sigmas[c], kernel="none"))
             values = self.smoother.estimate if self.smoother.estimate.exists(key) else self._pending_values
             frames[t] = _Frame(key, values.atPose3(key).matrix(), t)
             return frames[t]
@@ -794,7 +807,7 @@ class OnlineFusion:
             key = camera_key(c, 0)
             self._static_keys[c] = key
             self._seed_cameras[c] = {t: found[0]}
-            self._pending.add(camera_prior_factor(key, found[0], sigmas=(0.05, 0.1), kernel="none"))
+            self._static_sigmas[c] = (0.05, 0.1)
         return self._camera(c, t)
 
     def _resect(self, c: int, keypoints: np.ndarray, fmt: str, i: int, a: float) -> np.ndarray | None:
