@@ -131,6 +131,8 @@ def test_bad_input_is_one_clear_error(rich):
     assert fusion.stats.late_dropped == 1 and fusion.stats.observations == 2 and len(fusion._buffer) == 1
     with pytest.raises(MocapgraphError, match="lag_s"):
         OnlineFusion(static_rig(rich), OnlineOptions(lag_s=0.01))
+    with pytest.raises(MocapgraphError, match="static_camera_sigmas"):
+        OnlineFusion(static_rig(rich), OnlineOptions(static_camera_sigmas=(0.01, 0.0)))
 
 
 @pytest.mark.slow  # 9 s: an AirCap bootstrap and stream

@@ -17,7 +17,8 @@ weak pose regulariser, and camera variables:
   the estimate's slow drift (as :class:`~mocapgraph.pipelines.aircap.CameraPriors`), and
   constant-pose smoothness between its frames (``cameras="refine"``); or held at that estimate
   (``"prior"``). A static camera with a calibration is held at it.
-- **Uncalibrated rigs** (SmartMocap): a static camera is one variable for the whole stream, a
+- **Uncalibrated rigs** (SmartMocap): a static camera is one variable for the whole stream (under a
+  prior at the bootstrap's estimate: the body states leaving the window leave their information on it), a
   moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
   SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held.
 
@@ -783,8 +784,9 @@ class OnlineFusion:
     def _join(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None) -> _Frame | None:
         """A static camera of an uncalibrated rig that the bootstrap did not see: its first
         ``join_frames`` frames' keypoints are resected together on the body's estimates at their
-        times (they are not used otherwise: None), then it is held there (or, with
-        ``static_cameras="refine"``, starts a variable there)."""
+        times (they are not used otherwise: None), then it starts a variable there under a loose
+        prior (0.05 rad, 0.1 m: a resection on the body is less sure than the bootstrap), or with
+        ``static_cameras="hold"`` is held there."""
         if seen is None:
             return None
         keypoints, fmt, i, a = seen
