@@ -294,6 +294,31 @@ def test_static_cameras_improve_as_the_stream_goes_on():
     assert evaluate(smoothed, capture).metrics["mpjpe_m"] < 0.03  # measured 22.1 mm
 
 
+
+@pytest.mark.slow  # 5 s: a stream of its own
+def test_refined_static_cameras_are_held_after_static_refine_s(rich):
+    """After ``static_refine_s`` of refinement each static camera is held at its last estimate and
+    its variable leaves the window with the states of its time; the body stays on the truth."""
+    from dataclasses import replace
+
+    from mocapgraph.factors.keys import camera_key
+
+    fusion = OnlineFusion(static_rig(rich), replace(OPTIONS, static_refine_s=1.0))
+    refined = {}
+    for f in stream(rich):
+        fusion.update(f.camera, f.timestamp, f.keypoints, f.box, f.sensors, f.detector)
+        for c, key in fusion._static_keys.items():
+            if fusion.smoother.estimate.exists(key):
+                refined[c] = fusion.smoother.estimate.atPose3(key).matrix()
+    assert len(refined) == 7 and not fusion._static_keys
+    assert not any(fusion.smoother.holds(camera_key(c, 0)) for c in refined)
+    for c, pose in refined.items():
+        assert np.allclose(fusion._fixed[c], pose, atol=1e-9), c
+    fusion.finish()
+    for t in (2.4, 2.9):
+        assert _state_error_m(fusion, rich, int(round((t - fusion.t0) / fusion.period))) < 0.06, t
+
+
 def test_online_results_export_and_read_back(rich_run, tmp_path):
     """Both trajectories of the online loop go through the exporters like any batch result:
     the BVH's joints read back (test_exports' parser) equal the result's."""

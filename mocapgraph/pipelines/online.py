@@ -17,8 +17,9 @@ weak pose regulariser, and camera variables:
   the estimate's slow drift (as :class:`~mocapgraph.pipelines.aircap.CameraPriors`), and
   constant-pose smoothness between its frames (``cameras="refine"``); or held at that estimate
   (``"prior"``). A static camera with a calibration is held at it.
-- **Uncalibrated rigs** (SmartMocap): a static camera is one variable for the whole stream (under a
-  prior at the bootstrap's estimate: the body states leaving the window leave their information on it), a
+- **Uncalibrated rigs** (SmartMocap): a static camera is one variable kept in the window (under a
+  prior at the bootstrap's estimate: the body states leaving the window leave their information on
+  it) for ``static_refine_s``, then held at its estimate; a
   moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
   SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held.
 
@@ -123,6 +124,13 @@ class OnlineOptions:
     # (seed 1: 25.1 / 25.3 and 12.6 / 24.4 mm), for ~1.3 ms more CPU per update (docs/online.md).
     static_cameras: str = "refine"
     static_camera_sigmas: tuple[float, float] = (0.01, 0.03)
+    # Refined for this long (seconds from its first update), then held at its estimate and its
+    # variable let leave the window (None: refined all along). The cameras settle within ~10 s (rich,
+    # centres 22 -> 3 mm at 12 s); after that, refining costs ~1.3 ms an update and lets a long-lived,
+    # ever more confident linearised marginal follow the body's faults (10 min of rich refined all
+    # along: 78 detections gated out at 4-5 min and the cameras moved up to 24 mm there; 5.5 min: MPJPE
+    # 20.2-21.3 mm per 30 s against 20.0-20.8 held from 30 s, CPU p50 8.1 against 6.7 ms).
+    static_refine_s: float | None = 30.0
     # No relinearisation: with the pose GMM and the re-acquisition it changed no error measured
     # (rich, aircap, a person out of view) and was the p95 (docs/online.md)
     relinearisation: Relinearisation = field(default_factory=lambda: Relinearisation(enabled=False))
@@ -190,6 +198,8 @@ class OnlineOptions:
             raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
+        if self.static_refine_s is not None and not (isinstance(self.static_refine_s, (int, float)) and math.isfinite(self.static_refine_s) and self.static_refine_s > 0):
+            raise MocapgraphError(f"static_refine_s: a finite number of seconds > 0 or None, got {self.static_refine_s!r}")
         for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s", "prior_timeout_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -378,6 +388,7 @@ class OnlineFusion:
         self._seed_cameras: dict[int, dict[float, np.ndarray]] = {}  # camera → {frame time: pose}
         self._static_keys: dict[int, int] = {}  # uncalibrated static camera → its key
         self._static_sigmas: dict[int, tuple[float, float]] = {}  # its prior's (rad, m) about where it was placed
+        self._static_since: dict[int, float] = {}  # the end of the first update its variable was in
         self._offsets: set[int] = set()
         self._fixed: dict[int, np.ndarray] = {}  # calibrated static camera → world_T_camera
         self._self_pose: dict[int, deque] = {c: deque() for c in range(len(self.rig.cameras))}
@@ -938,6 +949,8 @@ class OnlineFusion:
                     self._pending.add(pose_smoothness_factor([pose_key(k - 2), pose_key(k - 1), pose_key(k)], times, self._pose_sigma_rad_s2))
             self.newest = k
             created.append((k, root, pose))
+        if self.options.static_refine_s is not None:
+            self._hold_refined(self.t0 + end * self.period)
         keep = [*self._static_keys.values(), *self._offsets]
         keep = [k for k in keep if self.smoother.holds(k) or self._pending_values.exists(k)]
         try:
@@ -966,6 +979,21 @@ class OnlineFusion:
             for f in frames.values():
                 if f.key is not None and self.smoother.estimate.exists(f.key):
                     f.pose = self.smoother.estimate.atPose3(f.key).matrix()
+
+    def _hold_refined(self, now: float) -> None:
+        """The static cameras refined for ``static_refine_s`` are held from now on at their
+        estimate; their variables, no longer kept, leave the window with the states of their time
+        (the frames already in the window stay explained by them)."""
+        for c in list(self._static_keys):
+            # the bootstrap's replay starts its cameras' variables with frames from the stream's start
+            if now - self._static_since.setdefault(c, now) < self.options.static_refine_s:
+                continue
+            key = self._static_keys.pop(c)
+            if self.smoother.estimate.exists(key):
+                self._fixed[c] = self.smoother.estimate.atPose3(key).matrix()
+            else:
+                self._fixed[c] = self._pending_values.atPose3(key).matrix()
+            log.info("online: camera %r held from %.1f s at its refined estimate", self.rig.cameras[c].name, now)
 
     def _restart(self, error: RuntimeError, created: list[tuple[int, np.ndarray, np.ndarray]]) -> UpdateReport:
         """The smoother threw: its window is taken as smoothed as it is, the states this update
