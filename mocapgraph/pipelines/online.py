@@ -20,7 +20,9 @@ weak pose regulariser, and camera variables:
   samples received so far (:class:`~mocapgraph.graphs.navigation.IncrementalNavigation`); a GPS
   outage leaves that fusion coasting on the IMU (flag ``camera_prior_coasting``). A static camera
   with a calibration is held at it.
-- **Uncalibrated rigs** (SmartMocap): a static camera is one variable for the whole stream, a
+- **Uncalibrated rigs** (SmartMocap): a static camera is one variable kept in the window (under a
+  prior at the bootstrap's estimate: the body states leaving the window leave their information on
+  it) for ``static_refine_s``, then held at its estimate; a
   moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
   SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held.
 
@@ -116,10 +118,23 @@ class OnlineOptions:
     # near the onboard estimate drifted with the body's whole-body relabellings
     cameras: str = "prior"
     detector: str | None = None  # default: each camera's first detector
-    # An uncalibrated rig's static cameras after the bootstrap: held at its estimate, or variables
-    # all along ("refine": every update then re-eliminates them with the whole window, measured
-    # 3-4x slower on rich; docs/online.md).
-    static_cameras: str = "hold"
+    # An uncalibrated rig's static cameras after the bootstrap: variables all along ("refine"),
+    # each under a prior at the bootstrap's estimate (``static_camera_sigmas``, radians and metres),
+    # so that every body state that leaves the window leaves its information on them; or held at
+    # the bootstrap's estimate ("hold"). Without the prior "refine" diverged: the only gauge was the
+    # first root's prior, weak in tilt and height (offline's ground term is not in the loop), and the
+    # first update moved the cameras 0.3-1.3 m (rich 10 s: smoothed MPJPE 0.48 m). With it, rich
+    # 10 s (smoothed, static cameras' MCPE / MPJPE): hold 18.2 / 23.0 mm, refine 12.7 / 21.8 mm
+    # (seed 1: 25.1 / 25.3 and 12.6 / 24.4 mm), for ~1.3 ms more CPU per update (docs/online.md).
+    static_cameras: str = "refine"
+    static_camera_sigmas: tuple[float, float] = (0.01, 0.03)
+    # Refined for this long (seconds from its first update), then held at its estimate and its
+    # variable let leave the window (None: refined all along). The cameras settle within ~10 s (rich,
+    # centres 22 -> 3 mm at 12 s); after that, refining costs ~1.3 ms an update and lets a long-lived,
+    # ever more confident linearised marginal follow the body's faults (10 min of rich refined all
+    # along: 78 detections gated out at 4-5 min and the cameras moved up to 24 mm there; 5.5 min: MPJPE
+    # 20.2-21.3 mm per 30 s against 20.0-20.8 held from 30 s, CPU p50 8.1 against 6.7 ms).
+    static_refine_s: float | None = 30.0
     # No relinearisation: with the pose GMM and the re-acquisition it changed no error measured
     # (rich, aircap, a person out of view) and was the p95 (docs/online.md)
     relinearisation: Relinearisation = field(default_factory=lambda: Relinearisation(enabled=False))
@@ -193,11 +208,16 @@ class OnlineOptions:
             raise MocapgraphError(f"rig {self.rig!r}: choose one of {', '.join(RIGS)}")
         if self.static_cameras not in ("hold", "refine"):
             raise MocapgraphError(f"static_cameras {self.static_cameras!r}: choose hold or refine")
+        sigmas = self.static_camera_sigmas
+        if not (isinstance(sigmas, (tuple, list)) and len(sigmas) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in sigmas)):
+            raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
         if self.camera_priors not in PRIOR_SOURCES:
             raise MocapgraphError(f"camera_priors {self.camera_priors!r}: choose one of {', '.join(PRIOR_SOURCES)}")
         self.navigation.check()
+        if self.static_refine_s is not None and not (isinstance(self.static_refine_s, (int, float)) and math.isfinite(self.static_refine_s) and self.static_refine_s > 0):
+            raise MocapgraphError(f"static_refine_s: a finite number of seconds > 0 or None, got {self.static_refine_s!r}")
         for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s", "prior_timeout_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -388,6 +408,8 @@ class OnlineFusion:
         self._bootstrap_states = 0
         self._seed_cameras: dict[int, dict[float, np.ndarray]] = {}  # camera → {frame time: pose}
         self._static_keys: dict[int, int] = {}  # uncalibrated static camera → its key
+        self._static_sigmas: dict[int, tuple[float, float]] = {}  # its prior's (rad, m) about where it was placed
+        self._static_since: dict[int, float] = {}  # the end of the first update its variable was in
         self._offsets: set[int] = set()
         self._fixed: dict[int, np.ndarray] = {}  # calibrated static camera → world_T_camera
         self._self_pose: dict[int, deque] = {c: deque() for c in range(len(self.rig.cameras))}
@@ -584,6 +606,7 @@ class OnlineFusion:
                     self._fixed[c] = track.world_T_camera[0]
                     continue
                 self._static_keys[c] = camera_key(c, 0)
+                self._static_sigmas[c] = o.static_camera_sigmas
             self._seed_cameras[c] = {float(t): T for t, T in zip(track.timestamps, track.world_T_camera)}
         if self.kind == "smartmocap":
             self._gauge = Estimate(est.roots[:1], est.poses[:1], self.shape, [])
@@ -749,8 +772,10 @@ class OnlineFusion:
         if c in self._static_keys:
             key = self._static_keys[c]
             if not (self.smoother.holds(key) or self._pending_values.exists(key)):
-                self._pending_values.insert(key, gtsam.Pose3(next(iter(self._seed_cameras[c].values()))))
+                seed = next(iter(self._seed_cameras[c].values()))
+                self._pending_values.insert(key, gtsam.Pose3(seed))
                 self._pending_stamps[key] = t
+                self._pending.add(camera_prior_factor(key, seed, sigmas=self._static_sigmas[c], kernel="none"))
             values = self.smoother.estimate if self.smoother.estimate.exists(key) else self._pending_values
             frames[t] = _Frame(key, values.atPose3(key).matrix(), t)
             return frames[t]
@@ -810,8 +835,9 @@ class OnlineFusion:
     def _join(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None) -> _Frame | None:
         """A static camera of an uncalibrated rig that the bootstrap did not see: its first
         ``join_frames`` frames' keypoints are resected together on the body's estimates at their
-        times (they are not used otherwise: None), then it is held there (or, with
-        ``static_cameras="refine"``, starts a variable there)."""
+        times (they are not used otherwise: None), then it starts a variable there under a loose
+        prior (0.05 rad, 0.1 m: a resection on the body is less sure than the bootstrap), or with
+        ``static_cameras="hold"`` is held there."""
         if seen is None:
             return None
         keypoints, fmt, i, a = seen
@@ -834,7 +860,7 @@ class OnlineFusion:
             key = camera_key(c, 0)
             self._static_keys[c] = key
             self._seed_cameras[c] = {t: found[0]}
-            self._pending.add(camera_prior_factor(key, found[0], sigmas=(0.05, 0.1), kernel="none"))
+            self._static_sigmas[c] = (0.05, 0.1)
         return self._camera(c, t)
 
     def _resect(self, c: int, keypoints: np.ndarray, fmt: str, i: int, a: float) -> np.ndarray | None:
@@ -966,6 +992,8 @@ class OnlineFusion:
                     self._pending.add(pose_smoothness_factor([pose_key(k - 2), pose_key(k - 1), pose_key(k)], times, self._pose_sigma_rad_s2))
             self.newest = k
             created.append((k, root, pose))
+        if self.options.static_refine_s is not None:
+            self._hold_refined(self.t0 + end * self.period)
         keep = [*self._static_keys.values(), *self._offsets]
         keep = [k for k in keep if self.smoother.holds(k) or self._pending_values.exists(k)]
         try:
@@ -994,6 +1022,21 @@ class OnlineFusion:
             for f in frames.values():
                 if f.key is not None and self.smoother.estimate.exists(f.key):
                     f.pose = self.smoother.estimate.atPose3(f.key).matrix()
+
+    def _hold_refined(self, now: float) -> None:
+        """The static cameras refined for ``static_refine_s`` are held from now on at their
+        estimate; their variables, no longer kept, leave the window with the states of their time
+        (the frames already in the window stay explained by them)."""
+        for c in list(self._static_keys):
+            # the bootstrap's replay starts its cameras' variables with frames from the stream's start
+            if now - self._static_since.setdefault(c, now) < self.options.static_refine_s:
+                continue
+            key = self._static_keys.pop(c)
+            if self.smoother.estimate.exists(key):
+                self._fixed[c] = self.smoother.estimate.atPose3(key).matrix()
+            else:
+                self._fixed[c] = self._pending_values.atPose3(key).matrix()
+            log.info("online: camera %r held from %.1f s at its refined estimate", self.rig.cameras[c].name, now)
 
     def _restart(self, error: RuntimeError, created: list[tuple[int, np.ndarray, np.ndarray]]) -> UpdateReport:
         """The smoother threw: its window is taken as smoothed as it is, the states this update
