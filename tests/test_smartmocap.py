@@ -78,6 +78,7 @@ def test_ray_executor_gives_the_local_result(capture, solved):
     np.testing.assert_allclose(result.cameras["handheld"].world_T_camera, solved[0].cameras["handheld"].world_T_camera, atol=1e-9)
 
 
+@pytest.mark.slow  # 10 s; the demo's test runs the motion prior on the chunks too (make test's budget)
 def test_motion_prior_runs_on_the_chunks_and_the_sequence(capture):
     result, m = run(capture, motion_prior="vae", covariances=False)
     assert m["mpjpe_m"] < 0.05 and m["mcpe_m"] < 0.08
@@ -135,6 +136,7 @@ def cameras_only(capture, names):
     return replace(capture, cameras=[c for c in capture.cameras if c.name in names])
 
 
+@pytest.mark.slow  # 5 s: a SmartMocap run with calibrated covariances (make test's budget)
 def test_single_static_camera_says_what_it_cannot_determine(capture, solved):
     result, m = run(cameras_only(capture, {"cam1"}))
     notes = " ".join(result.parameters["notes"])
@@ -147,6 +149,7 @@ def test_single_static_camera_says_what_it_cannot_determine(capture, solved):
     assert m["pa_mpjpe_m"] < 0.08
 
 
+@pytest.mark.slow  # 5 s: a whole SmartMocap run for one note
 def test_all_cameras_moving_runs_and_says_so():
     cap = synthesize("phones", seed=1, duration_s=1.5)
     result, m = run(cameras_only(cap, {"phone_walk1", "phone_walk2"}), covariances=False)
