@@ -148,7 +148,10 @@ def _group_rows(system: LinearSystem, factors: np.ndarray, pairs: bool = False) 
 
 def _information(system: LinearSystem, row_scale: np.ndarray):
     A = sparse.diags(row_scale) @ system.A
-    return A, splu((A.T @ A).tocsc())
+    # The information matrix is symmetric positive definite: no pivoting, a symmetric ordering.
+    # SuperLU's default (COLAMD, partial pivoting) filled it ~7x more and took ~10x longer
+    # (phones 3 s, 9312 columns: 3.7 s -> 0.4 s, solutions equal to 5e-9 relative).
+    return A, splu((A.T @ A).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
 
 def variance_factors(
