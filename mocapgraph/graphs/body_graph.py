@@ -638,7 +638,7 @@ class BodyGraph:
                 out["joints"] = with_shape_cross(calibration, fk, roots, poses, self.shape_key, out["joints"])
             datum = joints_datum(calibration, fk, roots, poses, self.shape_key)
             out["joints"] = joints_in_datum(datum, fk.joints, out["joints"])
-            out["root"] = poses_in_datum(datum, calibration, [root_key(i) for i in range(n)], estimate.roots, out["root"])
+            out["root"] = poses_in_datum(datum, calibration, roots, estimate.roots, out["root"])
             for c, keys in camera_keys.items():
                 name = f"camera:{self.model.cameras[c].name}"
                 out[name] = poses_in_datum(datum, calibration, keys, estimate.cameras[c][self.model.camera_frames(c)], out[name])

@@ -256,6 +256,7 @@ class SimilarityDatum:
         W = np.asarray((point_rows.T @ fit.T).T)  # (7, n)
         self.Z = lu.solve(np.ascontiguousarray(W.T))  # (n, 7) Σ Wᵀ
         self.WZ = W @ self.Z  # (7, 7) the fitted similarity's covariance
+        self.points_Z = np.asarray(point_rows @ self.Z)  # (3P, 7): the datum's own points' rows_Z
 
     def apply(self, cov: np.ndarray, rows_Z: np.ndarray, G: np.ndarray) -> np.ndarray:
         """``cov (..., d, d)``, ``rows_Z (..., d, 7)`` = ``rows @ Z``, ``G (..., d, 7)`` → ``(..., d, d)``."""
@@ -332,9 +333,7 @@ def joints_datum(calibration: Calibration, fk, roots_keys: list[int], pose_keys:
         ci.append(cols[c])
         data.append(d[i][r, c])
     rows = sparse.csr_matrix((np.concatenate(data), (np.concatenate(ri), np.concatenate(ci))), shape=(3 * NUM_JOINTS * n, system.n))
-    datum = SimilarityDatum(calibration.lu, fk.joints.reshape(-1, 3), rows)
-    datum.joint_rows_Z = np.asarray(rows @ datum.Z).reshape(n, NUM_JOINTS, 3, 7)
-    return datum
+    return SimilarityDatum(calibration.lu, fk.joints.reshape(-1, 3), rows)
 
 
 def with_shape_cross(calibration: Calibration, fk, root_keys: list[int], pose_keys: list[int], shape: int, joints_cov: np.ndarray) -> np.ndarray:
@@ -360,7 +359,7 @@ def with_shape_cross(calibration: Calibration, fk, root_keys: list[int], pose_ke
 def joints_in_datum(datum: SimilarityDatum, joints: np.ndarray, joints_cov: np.ndarray) -> np.ndarray:
     """``joints_cov (N, 22, 3, 3)`` of ``joints (N, 22, 3)`` in ``datum`` (built by :func:`joints_datum` on them)."""
     G = similarity_jacobian((joints - datum.centroid).reshape(-1, 3)).reshape(joints.shape[:2] + (3, 7))
-    return datum.apply(joints_cov, datum.joint_rows_Z, G)
+    return datum.apply(joints_cov, datum.points_Z.reshape(joints.shape[:2] + (3, 7)), G)
 
 
 def poses_in_datum(datum: SimilarityDatum, calibration: Calibration, keys: list[int], poses: np.ndarray, covs: np.ndarray) -> np.ndarray:
