@@ -21,6 +21,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 
+import gtsam
 import numpy as np
 
 from mocapgraph.body import load_body_model
@@ -139,13 +140,8 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     bg = BodyGraph(model, body, options.graph, fixed_cameras={0: np.tile(np.eye(4), (len(capture.cameras[0].timestamps), 1, 1))})
     graph = values = swaps = None
     if options.refine:
-        graph, values = bg.sequence(estimate)
         log.info("airpose: AirPose+, %d frames, %d camera poses", model.num_states, len(bg.camera_vars()))
-        stages = bg.stages(options.iterations, bg.time_ordering(values))
-        solved = solve_staged(held(graph, values, bg.held_keys()), values, stages, progress="AirPose+", project=bg.project_shape)
-        values = solved.values
-        estimate = bg.read(values, estimate)
-        estimate.log = list(solved.log)
+        graph, values, estimate = _bundle_adjust(bg, estimate, options.iterations, "AirPose+")
         for _ in range(options.swap_rounds if options.graph.swaps and options.posed_swaps else 0):
             # The solve explains a run it did not relabel by taking the other camera round the
             # person; its cameras elsewhere check the labels again, and the sequence is solved
@@ -155,13 +151,8 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
                 break
             before, model = checked, detected.relabelled(checked)
             bg = BodyGraph(model, body, options.graph, fixed_cameras=bg.fixed_cameras)
-            graph, values = bg.sequence(estimate)
-            bg.relabel(False)  # held as checked: the solve's own choice would put the runs back
-            stages = bg.stages(options.iterations, bg.time_ordering(values))
-            solved = solve_staged(held(graph, values, bg.held_keys()), values, stages, progress="AirPose+ (relabelled)", project=bg.project_shape)
-            values = solved.values
-            estimate = bg.read(values, estimate)
-            estimate.log += list(solved.log)
+            # held as checked: the solve's own choice would put the runs back
+            graph, values, estimate = _bundle_adjust(bg, estimate, options.iterations, "AirPose+ (relabelled)", relabel=False)
         swaps = combined_swaps(model, before, bg.relabelled(estimate))
         notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate))
     seconds = time.perf_counter() - t_start
@@ -175,6 +166,20 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     result = _with_left_out(result, full.times, keep)
     result.parameters.update(focal_px=bg.focal_lengths(estimate) if options.refine else {}, initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes)
     return result
+
+
+def _bundle_adjust(bg: BodyGraph, estimate: Estimate, iterations: int, progress: str, relabel: bool = True) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, Estimate]:
+    """AirPose+'s sequence bundle adjustment of ``bg`` from ``estimate`` (without ``relabel``:
+    the detections' labels held as the model has them): the graph, its solution and the
+    estimate read from it, the solver's log appended."""
+    graph, values = bg.sequence(estimate)
+    if not relabel:
+        bg.relabel(False)
+    stages = bg.stages(iterations, bg.time_ordering(values))
+    solved = solve_staged(held(graph, values, bg.held_keys()), values, stages, progress=progress, project=bg.project_shape)
+    estimate = bg.read(solved.values, estimate)
+    estimate.log += list(solved.log)
+    return graph, solved.values, estimate
 
 
 def _checked(detected: StateModel, before: dict[int, np.ndarray], cameras: list[np.ndarray], half_window: int, keep_within_rad: float | None) -> dict[int, np.ndarray]:
