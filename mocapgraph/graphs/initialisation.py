@@ -27,7 +27,7 @@ import numpy as np
 from mocapgraph.body.keypoint_formats import COCO17, get_format
 from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.body.model import BodyModel
-from mocapgraph.body.rotations import nearest_rotation
+from mocapgraph.body.rotations import nearest_rotation, relative_angle
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.geometry.epipolar import resolve_swaps
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
@@ -132,8 +132,7 @@ def robust_pose_track(poses: np.ndarray, known: np.ndarray, half_window: int, ke
         if not known[window].any():
             continue
         mean = robust_pose_mean(poses[window][known[window]])
-        cos = (np.trace(mean[:3, :3].T @ out[t, :3, :3]) - 1.0) / 2.0
-        if not (keep_within_rad is not None and known[t] and np.arccos(np.clip(cos, -1.0, 1.0)) <= keep_within_rad):
+        if not (keep_within_rad is not None and known[t] and relative_angle(mean[:3, :3], out[t, :3, :3]) <= keep_within_rad):
             out[t] = mean
     return out
 
