@@ -593,8 +593,9 @@ def definition_graph(
     out.scale.sigma_px = bg.scale.sigma_px
     # the solve's values (its priors' latents too), the offsets' parameters the new variables
     merged = gtsam.Values(solved)
+    offset_keys = {out.offset_key(fmt) for fmt in out.format_index}
     for key in solved.keys():
-        if not values.exists(key) or chr(gtsam.Symbol(key).chr()) == "k":
+        if not values.exists(key) or key in offset_keys:
             merged.erase(key)
     for key in values.keys():
         if not merged.exists(key):
