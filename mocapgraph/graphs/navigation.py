@@ -869,10 +869,10 @@ class IncrementalNavigation:
             self._last_fix_t = float(gps_log["t"][-1])
         # what the batch did not use: the samples after the last state's half period
         after = state_t[-1] + 0.5 / rate
-        for kind, fields in (("gps", ("position", "sigma")), ("baro", ("altitude", "sigma"))):
+        for kind in self._pending:
             log_ = logs.get(kind)
             if log_ is not None:
-                self._pending[kind] = [(float(s), *(log_[f][j] for f in fields)) for j, s in enumerate(log_["t"]) if s > after]
+                self._pending[kind] = [(float(s), *(log_[f][j] for f in _FIELDS[kind])) for j, s in enumerate(log_["t"]) if s > after]
         self._imu = [(float(s), imu_log["accel"][k], imu_log["gyro"][k]) for k, s in enumerate(imu_log["t"])]
         self._forget()
         self._logs = {kind: {f: [] for f in fields} for kind, fields in self._logs.items()}
