@@ -338,6 +338,17 @@ def apply_labels(values, labels, names: Sequence[str]) -> np.ndarray:
     return out
 
 
+def _misfit_nats(total: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """``(..., S, S)`` nats from the truncated squared distances' sums ``total`` and their counts
+    ``count`` under every pair of labellings (last two axes): ``m/2 · log(mean d²)`` with ``m``
+    the most points any labelling pair shares there (:func:`pair_tables`); 0 with fewer than
+    :data:`MIN_SWAP_POINTS`."""
+    most = count.max(axis=(-2, -1), keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nats = 0.5 * most * np.log(total / count + _FLOOR_PX2)
+    return np.where((count >= MIN_SWAP_POINTS) & (most >= MIN_SWAP_POINTS), nats, 0.0)
+
+
 def pair_tables(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Sequence[str], *, cap_px: float) -> dict[tuple[int, int], np.ndarray]:
     """Each pair's epipolar misfit, in nats, under every combination of the two cameras' labellings.
 
@@ -370,10 +381,7 @@ def pair_tables(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Seq
                 d = np.minimum(sampson_px(geometry.F, x[a][:, pa], x[b][:, pb]), cap_px)
                 total[:, i, j] = np.where(both, d**2, 0.0).sum(axis=1)
                 count[:, i, j] = both.sum(axis=1)
-        most = count.max(axis=(1, 2), keepdims=True)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nats = 0.5 * most * np.log(total / count + _FLOOR_PX2)
-        tables[(a, b)] = np.where((count >= MIN_SWAP_POINTS) & (most >= MIN_SWAP_POINTS), nats, 0.0)
+        tables[(a, b)] = _misfit_nats(total, count)
     return tables
 
 
@@ -431,10 +439,7 @@ def track_tables(x, w, names: Sequence[str], *, cap_px: float, max_gap: int = MA
             d = np.minimum(np.linalg.norm(x[:, :, pj] - x0[:, :, pi] - shift, axis=-1), cap_px)
             total[..., i, j] = np.where(both, d**2, 0.0).sum(axis=-1)
             count[..., i, j] = both.sum(axis=-1)
-    most = count.max(axis=(2, 3), keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        nats = 0.5 * most * np.log(total / count + _FLOOR_PX2)
-    out[:] = np.where((count >= MIN_SWAP_POINTS) & (most >= MIN_SWAP_POINTS), nats, 0.0)
+    out[:] = _misfit_nats(total, count)
     return out
 
 
