@@ -418,9 +418,8 @@ def track_tables(x, w, names: Sequence[str], *, cap_px: float, max_gap: int = MA
         raise MocapgraphError(f"names: {len(names)} point names for {K} keypoints")
     perms = [swap_permutation(names, kind) for kind in SWAP_KINDS]
     S = len(perms)
-    out = np.zeros((C, N, S, S))
     if N < 2:
-        return out
+        return np.zeros((C, N, S, S))
     # each frame's predecessor: the last earlier frame with enough points, within max_gap
     tracked = (w > 0).sum(axis=-1) >= MIN_SWAP_POINTS
     last = np.maximum.accumulate(np.where(tracked, np.arange(N), -1), axis=1)
@@ -439,8 +438,7 @@ def track_tables(x, w, names: Sequence[str], *, cap_px: float, max_gap: int = MA
             d = np.minimum(np.linalg.norm(x[:, :, pj] - x0[:, :, pi] - shift, axis=-1), cap_px)
             total[..., i, j] = np.where(both, d**2, 0.0).sum(axis=-1)
             count[..., i, j] = both.sum(axis=-1)
-    out[:] = _misfit_nats(total, count)
-    return out
+    return _misfit_nats(total, count)
 
 
 def swap_costs(tables: dict[tuple[int, int], np.ndarray], labels) -> np.ndarray:
