@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from swap_truth import result_codes, swap_confusion
 
 from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.data_tools.evaluation.evaluate import evaluate
@@ -20,18 +21,8 @@ def confusion(result, capture, moving: bool | None = None) -> tuple[int, int, in
     """Relabelled frames against the simulator's truth over every camera frame of the result (of
     the moving or static cameras only, if ``moving`` says): (right kind found, relabelled wrongly
     or when not swapped, swapped but not found)."""
-    tp = fp = fn = 0
-    for cam in capture.cameras:
-        if moving is not None and cam.moving != moving:
-            continue
-        track = result.cameras[cam.name]
-        frames = np.searchsorted(cam.timestamps, track.timestamps)
-        (truth,) = capture.ground_truth.swaps[cam.name].values()
-        truth, got = truth[frames], track.swaps
-        tp += int(np.sum((truth > 0) & (got == truth)))
-        fp += int(np.sum((got > 0) & (got != truth)))
-        fn += int(np.sum((truth > 0) & (got != truth)))
-    return tp, fp, fn
+    codes = result_codes(result, capture)
+    return swap_confusion(capture, {name: c for name, c in codes.items() if moving is None or capture.camera(name).moving == moving})
 
 
 @pytest.fixture(scope="module")
@@ -88,20 +79,6 @@ def test_calibrated_baseline_relabels_static_cameras():
     assert checked.parameters["median_reprojection_error_px"] < plain.parameters["median_reprojection_error_px"] + 0.05
 
 
-def phones_confusion(capture, codes: dict[str, np.ndarray]) -> tuple[int, int, int]:
-    """Per-camera-frame ``codes`` (camera name → ``(T_c,)``, -1 where not observed) against the
-    simulator's record: (right kind found, relabelled wrongly or when not swapped, swapped but not found)."""
-    tp = fp = fn = 0
-    for cam in capture.cameras:
-        (truth,) = capture.ground_truth.swaps[cam.name].values()
-        got = codes[cam.name]
-        seen = got >= 0
-        tp += int(np.sum((truth > 0) & (got == truth) & seen))
-        fp += int(np.sum((got > 0) & (got != truth) & seen))
-        fn += int(np.sum((truth > 0) & (got != truth) & seen))
-    return tp, fp, fn
-
-
 @pytest.fixture(scope="module")
 def phones():
     """Two static phones and two carried ones, 4 s: where only one static phone sees the person
@@ -128,7 +105,7 @@ def test_every_placed_camera_checks_the_others_labels(phones):
     truth = np.concatenate([next(iter(phones.ground_truth.swaps[cam.name].values())) for cam in phones.cameras])
     assert np.sum(truth > 0) >= 40, "the capture should hold sustained swaps"
     codes = posed_view_swaps(model, [phones.ground_truth.cameras[cam.name] for cam in phones.cameras])
-    tp, fp, fn = phones_confusion(phones, {cam.name: codes[c] for c, cam in enumerate(phones.cameras)})
+    tp, fp, fn = swap_confusion(phones, {cam.name: codes[c] for c, cam in enumerate(phones.cameras)})
     assert tp / (tp + fp) >= 0.95 and tp / (tp + fn) >= 0.95, (tp, fp, fn)
     assert set(view_swaps(model)) == {c for c, cam in enumerate(phones.cameras) if not cam.moving}
 
@@ -179,7 +156,7 @@ def test_two_moving_cameras_tell_which_one_swapped(airpose):
     sustained detectable swapped frames found, none wrongly, 75 of all 80 (measured); without
     the tracks, the circling camera's swaps were given to the hovering one (55 right, 8 wrong,
     10 missed of the 65; 62, 8, 18 of all 80)."""
-    from swap_truth import detectable, swap_confusion
+    from swap_truth import detectable
 
     from mocapgraph.graphs.initialisation import posed_view_swaps
     from mocapgraph.pipelines.observations import capture_state_model
@@ -209,7 +186,7 @@ def test_airpose_plus_relabels_two_moving_cameras(airpose):
     circling camera round the person instead (up to 178° off during the hovering one's 20-frame
     whole-body run). PA-MPJPE 4.3 -> 2.3 cm, camera 2 2.05 -> 1.03 m (the run with the true
     labels: 2.3 cm, 1.04 m)."""
-    from swap_truth import detectable, result_codes, swap_confusion
+    from swap_truth import detectable
 
     from mocapgraph.benchmarks.airpose import camera2_position_error_m
     from mocapgraph.pipelines.airpose import AirposeOptions, run_airpose
