@@ -36,11 +36,16 @@ test-video: $(VIDEO_STAMP)
 demo: install
 	$(VENV)/bin/mocapgraph demo
 
+# The suite runs in two processes (pytest-xdist), a test file each at a time: most tests are
+# single-threaded, so two workers use this machine's two cores; TEST_WORKERS=0 runs it serially.
+TEST_WORKERS ?= 2
+PYTEST := $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+
 test: install
-	$(PY) -m pytest -q
+	$(PYTEST)
 
 test-all: install
-	$(PY) -m pytest -q -m "slow or not slow"
+	$(PYTEST) -m "slow or not slow"
 
 # Speed and accuracy targets live here, not in timed tests; aircap takes about 15 minutes, priors
 # (which reads the held-out CMU takes of ../shared/motion/cmu_train) a few, smartmocap about ten, airpose
