@@ -244,7 +244,7 @@ def track_cost(
     imu: CameraImu, offset_s: float, times: np.ndarray, start: np.ndarray, views: tuple, noise: FusionNoise = PHONE_GYRO_NOISE,
     sigma_px: float = 3.0, sigma_m_s2: float = CLOCK_TRACK_SIGMA_M_S2, iterations: int = 10,
 ) -> float:  # fmt: skip
-    """The cost of camera's track alone, solved with its log shifted by ``offset_s``
+    """The cost of the camera's track alone, solved with its log shifted by ``offset_s``
     (``imu.shifted``): its poses at ``times (M,)`` (started at ``start (M, 4, 4)`` world_T_camera,
     a world that does not turn) on their ``views`` of held points (``(points (M, N, 3),
     observed (M, N, 2), weights (M, N), K (3, 3))``: :func:`~mocapgraph.factors.camera_priors.camera_points_factor`,
@@ -252,7 +252,7 @@ def track_cost(
     gyroscope between the frames the shifted log covers (:func:`~mocapgraph.factors.camera_priors.camera_gyro_factor`,
     its bias a state under its prior and walk). A wrong offset makes the gyroscope's turns early
     or late against the views: the hand's jitter, turns of a few mrad at 1-5 Hz, which a shift of
-    the camera cannot mimic without tens of m/s² (docs/phone-imu.md)."""
+    the camera cannot mimic without more than 10 m/s² (docs/phone-imu.md)."""
     points, observed, weights, K = views
     shifted = imu.shifted(offset_s)
     params = shifted.params(noise)
@@ -289,9 +289,9 @@ def estimate_time_offset(
     """The offset of the log's clock from the camera's (``log t = camera t + offset``), seconds:
     the minimum of :func:`track_cost` (``costs`` its weights) over a grid ``[-max_offset_s,
     max_offset_s]``, ``step_s`` apart, refined by a parabola through the best and its
-    neighbours. Every offset is scored on the same frame steps: those the log covers at both
-    ends of the grid. Returns the offset, the grid ``(G,)`` and the costs ``(G,)``; a NaN offset
-    when no step is covered."""
+    neighbours. Every offset is scored on the same frames: those inside the log at both ends of
+    the grid. Returns the offset, the grid ``(G,)`` and the costs ``(G,)``; a NaN offset
+    when fewer than three frames are."""
     grid = np.arange(-max_offset_s, max_offset_s + 0.5 * step_s, step_s)
     ends = [imu.shifted(float(o)) for o in (grid[0], grid[-1])]
     inside = [j for j in range(len(times)) if all(e.t[0] <= times[j] <= e.t[-1] for e in ends)]
