@@ -116,6 +116,7 @@ def add_parsers(subparsers) -> None:
     flags.add("refine", "AirPose: the initialiser's estimate, no bundle adjustment", flag="--initialiser-only")
     flags.add("min_confidence", "summed keypoint confidence a frame needs")
     flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
+    flags.add("imu", "leave the moving cameras' gyroscopes unused (docs/phone-imu.md)")
     flags.add("covariances", "skip the marginal covariances")
 
     smartmocap = command(run, "smartmocap", "static and moving uncalibrated cameras in the ground plane's frame (SmartMocap)")

@@ -28,6 +28,7 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
+from mocapgraph.factors.camera_priors import camera_gyro_factor
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
 from mocapgraph.factors.keys import (
     camera_bias_key,
@@ -52,7 +53,7 @@ from mocapgraph.factors.smoothness import (
     pose_velocity_factor,
     root_smoothness_factor,
 )
-from mocapgraph.graphs.camera_imu import PHONE_GYRO_NOISE, CameraImu, bias_prior, imu_factor
+from mocapgraph.graphs.camera_imu import PHONE_GYRO_NOISE, CameraImu, bias_prior, bias_walk_factor, imu_factor
 from mocapgraph.graphs.solver import annealed_stages
 from mocapgraph.graphs.state_model import Estimate, Observation, StateModel
 from mocapgraph.graphs.uncertainty import calibrated, factor_groups, joint_covariances, joints_datum, joints_in_datum, poses_in_datum, with_shape_cross
@@ -209,12 +210,20 @@ class BodyGraph:
         imu: per camera, its IMU log (:mod:`mocapgraph.graphs.camera_imu`): an estimated moving
             camera's consecutive frames the log covers get an IMU factor, with a velocity and a
             bias at each.
+        imu_reference: None when the world's −Z is gravity (SmartMocap's ground frame): the IMU
+            factors are GTSAM's ``CombinedImuFactor``. Else the held camera whose frame the world
+            is (AirPose's camera 1): the gravity direction is unknown there, so each step gets
+            the gyroscope's rotation relative to that camera
+            (:func:`~mocapgraph.factors.camera_priors.camera_gyro_factor`: no velocity, the bias
+            with its random walk), the reference's own gyroscope over the same step when it
+            moves (a step its log does not cover gets no factor; its gyroscope bias one
+            variable, ``camera_bias_key(reference, 0)``).
     """
 
     def __init__(
         self, model: StateModel, body: BodyModel, options: GraphOptions, *, learned: LearnedPriors | None = None,
         fixed_cameras: dict[int, np.ndarray] | None = None, fixed_shape=None, keypoint_offsets: dict[str, np.ndarray] | None = None,
-        imu: dict[int, CameraImu] | None = None,
+        imu: dict[int, CameraImu] | None = None, imu_reference: int | None = None,
     ):  # fmt: skip
         options.check()
         self.keypoint_offsets = dict(keypoint_offsets or {})
@@ -243,10 +252,17 @@ class BodyGraph:
         self.windows: list[int] = []
         # per estimated moving camera with an IMU log, the pairs of its consecutive frames the log covers
         self.imu = {c: log for c, log in (imu or {}).items() if c in self.estimated and model.cameras[c].moving}
+        self.imu_reference = imu_reference
+        # a moving reference turns the world with it: its own log must cover a step too
+        self.reference_imu = (imu or {}).get(imu_reference) if imu_reference is not None and model.cameras[imu_reference].moving else None
+        reference_needed = imu_reference is not None and model.cameras[imu_reference].moving
         self.imu_steps: dict[int, list[tuple[int, int]]] = {}
         for c, log in self.imu.items():
             frames, times = self.model.camera_frames(c), self.model.cameras[c].timestamps
-            self.imu_steps[c] = [(int(a), int(b)) for a, b in zip(frames[:-1], frames[1:]) if log.covers(times[a], times[b])]
+            self.imu_steps[c] = [
+                (int(a), int(b)) for a, b in zip(frames[:-1], frames[1:])
+                if log.covers(times[a], times[b]) and (not reference_needed or (self.reference_imu is not None and self.reference_imu.covers(times[a], times[b])))
+            ]  # fmt: skip
         # per state, its reprojection factors' labellings and the observations they cover
         self.labellings: dict[int, list[tuple[Labelling, list[Observation]]]] = {}
         # per factor group, its variance factor, once calibrated covariances were computed
@@ -307,8 +323,11 @@ class BodyGraph:
                 centres = estimate.cameras[c][frames, :3, 3]
                 velocity = np.gradient(centres, times, axis=0) if len(frames) > 1 else np.zeros((1, 3))
                 for j, v in zip(frames, velocity):
-                    values.insert(camera_velocity_key(c, j), v)
+                    if self.imu_reference is None:
+                        values.insert(camera_velocity_key(c, j), v)
                     values.insert(camera_bias_key(c, j), gtsam.imuBias.ConstantBias())
+        if self.reference_imu is not None and any(self.imu_steps.values()) and not values.exists(camera_bias_key(self.imu_reference, 0)):
+            values.insert(camera_bias_key(self.imu_reference, 0), gtsam.imuBias.ConstantBias())
         return values
 
     def imu_frames(self, c: int, states: range | None = None) -> np.ndarray:
@@ -464,17 +483,29 @@ class BodyGraph:
                     graph.add(camera_acceleration_factor(keys, cam.timestamps[list(triple)], o.camera_sigma_m_s2))
 
     def add_camera_imu(self, graph: gtsam.NonlinearFactorGraph) -> None:
-        """Every IMU step of every camera with a log: its ``CombinedImuFactor``, and the bias's
-        prior where a run of steps starts (the first frame, or after a gap)."""
+        """Every IMU step of every camera with a log: its ``CombinedImuFactor`` (or, in a
+        reference camera's world, its gyroscope's relative rotation and the bias's random walk),
+        and the bias's prior where a run of steps starts (the first frame, or after a gap)."""
+        noise = self.options.imu_noise
+        reference_bias = camera_bias_key(self.imu_reference, 0) if self.reference_imu is not None else None
+        if reference_bias is not None and any(self.imu_steps.values()):
+            graph.add(bias_prior(reference_bias, noise))
         for c, log in self.imu.items():
-            params, times = log.params(self.options.imu_noise), self.model.cameras[c].timestamps
+            params, times = log.params(noise), self.model.cameras[c].timestamps
             previous = None
             for a, b in self.imu_steps[c]:
                 if a != previous:
-                    graph.add(bias_prior(camera_bias_key(c, a), self.options.imu_noise))
+                    graph.add(bias_prior(camera_bias_key(c, a), noise))
                 keys = (self.model.camera_var(c, a), self.model.camera_var(c, b))
-                velocities, biases = (camera_velocity_key(c, a), camera_velocity_key(c, b)), (camera_bias_key(c, a), camera_bias_key(c, b))
-                graph.add(imu_factor(keys, velocities, biases, log.preintegrate(float(times[a]), float(times[b]), params)))
+                biases = (camera_bias_key(c, a), camera_bias_key(c, b))
+                t0, t1 = float(times[a]), float(times[b])
+                if self.imu_reference is None:
+                    velocities = (camera_velocity_key(c, a), camera_velocity_key(c, b))
+                    graph.add(imu_factor(keys, velocities, biases, log.preintegrate(t0, t1, params)))
+                else:
+                    reference = None if reference_bias is None else self.reference_imu.gyro_increment(t0, t1, self.reference_imu.params(noise))
+                    graph.add(camera_gyro_factor(*keys, biases[0], log.gyro_increment(t0, t1, params), reference_bias_key=reference_bias, reference=reference))
+                    graph.add(bias_walk_factor(*biases, t1 - t0, noise))
                 previous = b
 
     def add_ground(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:

@@ -178,3 +178,36 @@ def outlier_views(body: BodyModel, model: StateModel, estimate: Estimate, offset
         if e > limit:
             out.setdefault(c, []).append(j)
     return {c: np.array(sorted(frames)) for c, frames in out.items()}
+
+
+def camera_views(body: BodyModel, model: StateModel, estimate: Estimate, c: int, offsets: dict[str, np.ndarray] | None = None):
+    """Camera ``c``'s observations at its frames (one format each, at a state) against the
+    solved body's keypoints there (with the formats' ``offsets``).
+
+    Returns ``(frames (M,), points (M, N, 3) world metres, NaN where the body has no such point,
+    observed (M, N, 2) undistorted pixels, weights (M, N), K (3, 3))``, ``N`` the largest format's
+    size (rows padded with NaN points and zero weights)."""
+    posed: dict[str, np.ndarray] = {}
+    rows = []
+    seen = set()
+    for i, obs in enumerate(model.states):
+        for o in obs:
+            if o.camera != c or o.fraction != 0.0 or o.frame in seen:
+                continue
+            if o.fmt not in posed:
+                table, fk = _posed(body, estimate, o.fmt, (offsets or {}).get(o.fmt))
+                posed[o.fmt] = np.where(table.mapped[:, None], fk.keypoints, np.nan)
+            seen.add(o.frame)
+            rows.append((int(o.frame), posed[o.fmt][i], o.observed, o.weights))
+    rows.sort(key=lambda row: row[0])
+    n = max((len(r[1]) for r in rows), default=0)
+    return (
+        np.array([r[0] for r in rows], dtype=int), np.array([_padded(r[1], n, np.nan) for r in rows]).reshape(-1, n, 3),
+        np.array([_padded(r[2], n, np.nan) for r in rows]).reshape(-1, n, 2), np.array([_padded(r[3], n, 0.0) for r in rows]).reshape(-1, n),
+        _intrinsics(model, estimate, c),
+    )  # fmt: skip
+
+
+def _padded(a: np.ndarray, n: int, fill: float) -> np.ndarray:
+    """``a`` with rows of ``fill`` appended up to ``n`` rows."""
+    return np.concatenate([a, np.full((n - len(a),) + a.shape[1:], fill)]) if len(a) < n else a

@@ -29,6 +29,7 @@ from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import PER_FRAME_CAMERA, Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions
+from mocapgraph.graphs.camera_imu import start_from_gyroscopes
 from mocapgraph.graphs.initialisation import (
     INITIALISERS,
     fuse_bodies,
@@ -41,8 +42,8 @@ from mocapgraph.graphs.initialisation import (
 )
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
-from mocapgraph.pipelines.observations import capture_state_model
-from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, swap_notes
+from mocapgraph.pipelines.observations import camera_imus, capture_state_model
+from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, imu_support_notes, swap_notes
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +78,11 @@ class AirposeOptions:
     swap_rounds: int = 3
     detectors: tuple[str, ...] | None = None
     covariances: bool = True
+    # Moving cameras' IMU logs (with the capture's mount): each camera's gyroscope on its rotation
+    # relative to camera 1 (and camera 1's own when it moves), biases as states
+    # (BodyGraph's imu_reference; the accelerometer is not used: camera 1's frame has no known
+    # gravity direction).
+    imu: bool = True
     graph: GraphOptions = field(default_factory=GraphOptions)
 
     def check(self) -> None:
@@ -135,9 +141,14 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     fused = fuse_bodies(views, ref_T_c, known)
     cameras = [model.frames_from_states(c, ref_T_c[c]) for c in range(model.num_cameras)]
     estimate = Estimate(fused.camera_T_root, fused.pose, fused_shape(body, fused), cameras)
+    imu, imu_skipped = camera_imus(capture) if options.imu else ({}, [])
+    notes += imu_skipped
+    if not reference_moves:
+        # camera 1's frame does not turn: the gyroscopes' tracks replace the views' noisy rotations
+        start_from_gyroscopes(imu, model, estimate.cameras, options.graph.imu_noise)
     for note in notes:
         log.info("airpose: %s", note)
-    bg = BodyGraph(model, body, options.graph, fixed_cameras={0: np.tile(np.eye(4), (len(capture.cameras[0].timestamps), 1, 1))})
+    bg = BodyGraph(model, body, options.graph, fixed_cameras={0: np.tile(np.eye(4), (len(capture.cameras[0].timestamps), 1, 1))}, imu=imu, imu_reference=0)
     graph = values = swaps = None
     if options.refine:
         log.info("airpose: AirPose+, %d frames, %d camera poses", model.num_states, len(bg.camera_vars()))
@@ -150,11 +161,11 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
             if all(np.array_equal(np.maximum(codes, 0), np.maximum(before.get(c, codes * 0), 0)) for c, codes in checked.items()):
                 break
             before, model = checked, detected.relabelled(checked)
-            bg = BodyGraph(model, body, options.graph, fixed_cameras=bg.fixed_cameras)
+            bg = BodyGraph(model, body, options.graph, fixed_cameras=bg.fixed_cameras, imu=imu, imu_reference=0)
             # held as checked: the solve's own choice would put the runs back
             graph, values, estimate = _bundle_adjust(bg, estimate, options.iterations, "AirPose+ (relabelled)", relabel=False)
         swaps = combined_swaps(model, before, bg.relabelled(estimate))
-        notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate))
+        notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + imu_support_notes(bg)
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
     result = estimate_result(

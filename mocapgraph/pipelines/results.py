@@ -10,6 +10,7 @@ from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import CameraTrack, Result
+from mocapgraph.graphs.body_graph import BodyGraph
 from mocapgraph.graphs.state_model import Estimate, StateModel
 
 
@@ -91,3 +92,45 @@ def focal_notes(model: StateModel, focals: dict[str, float]) -> list[str]:
     """One note per camera whose focal length the solve estimated: the estimate against the given one."""
     given = {cam.name: float(cam.K[0, 0]) for cam in model.cameras}
     return [f"camera {name}: focal length estimated {f:.0f} px (given {given[name]:.0f} px, {100 * (f / given[name] - 1):+.0f} %)" for name, f in focals.items()]
+
+
+def frame_ranges(frames: np.ndarray) -> str:
+    """``[3, 4, 5, 9]`` → ``"3-5, 9"``."""
+    runs = np.split(frames, np.flatnonzero(np.diff(frames) > 1) + 1)
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}" for r in runs if len(r))
+
+
+def imu_support_notes(bg: BodyGraph, clock_offsets: dict[int, float] | None = None) -> list[str]:
+    """Per estimated moving camera, what its poses rest on: its views of the body (through which
+    the other cameras), the constant-velocity model if used, and its IMU over which frames (in a
+    reference camera's world, its gyroscope relative to that camera's); with the offset of each
+    log's clock estimated (``clock_offsets``, seconds, NaN where it could not be), or the clocks
+    taken as one."""
+    notes = []
+    model, offsets = bg.model, clock_offsets or {}
+    views = "its views of the body (the other cameras through the body)" + (" and the constant-velocity model" if bg.options.camera_sigma_m_s2 is not None else "")
+    reference = None if bg.imu_reference is None else model.names[bg.imu_reference]
+    for c in bg.estimated:
+        if not model.cameras[c].moving:
+            continue
+        name, frames = model.names[c], model.camera_frames(c)
+        if c not in bg.imu or not bg.imu_steps[c]:
+            why = "no IMU log" if c not in bg.imu else f"its IMU log covers none of its frame steps{'' if bg.reference_imu is not None or reference is None or not model.cameras[bg.imu_reference].moving else f' with the reference {reference} moving and no IMU log of its own'}"
+            notes.append(f"camera {name}: {why}; its poses rest on {views}")
+            continue
+        missing = np.setdiff1d(frames, bg.imu_frames(c))
+        what = (
+            "rotation increments from the gyroscope, velocity changes from the accelerometer; its position still rests on"
+            if reference is None else
+            f"rotation increments relative to camera {reference} from the gyroscope{'s' if bg.reference_imu is not None else ''}; its position rests on"
+        )  # fmt: skip
+        offset = offsets.get(c)
+        clock = "the log's clock taken as the camera's" if offset is None else (
+            "the log's clock taken as the camera's (its offset could not be estimated)" if not np.isfinite(offset) else f"the log's clock {1000 * offset:+.1f} ms off the camera's (estimated)"
+        )  # fmt: skip
+        notes.append(
+            f"camera {name}: IMU on {len(bg.imu_steps[c])} of {len(frames) - 1} frame steps: {what} {views}"
+            + (f"; frames {frame_ranges(missing)} without IMU on those alone" if len(missing) else "")
+            + f"; {clock}"
+        )
+    return notes

@@ -42,7 +42,7 @@ from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions, LearnedPriors, motion_windows
-from mocapgraph.graphs.camera_imu import covered_runs, gyro_aligned_rotations
+from mocapgraph.graphs.camera_imu import estimated_clock_offsets, start_from_gyroscopes
 from mocapgraph.graphs.initialisation import (
     INITIALISERS,
     coco_views,
@@ -64,7 +64,7 @@ from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import camera_imus, capture_state_model
 from mocapgraph.pipelines.reference_cameras import SOURCES as CAMERA_SOURCES
 from mocapgraph.pipelines.reference_cameras import ReferenceTracks, load_camera_reference, reference_tracks
-from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, swap_notes
+from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, frame_ranges, imu_support_notes, swap_notes
 from mocapgraph.priors.motion_windows import WINDOW
 
 log = logging.getLogger(__name__)
@@ -117,6 +117,9 @@ class SmartmocapOptions:
     # Moving cameras' IMU logs (gyroscope and accelerometer, with the capture's mount) as
     # preintegrated factors between their frames (mocapgraph.graphs.camera_imu).
     imu: bool = True
+    # The largest offset of a log's clock from its camera's searched for, after the chunks, on
+    # the stitched body (graphs.camera_imu.estimated_clock_offsets); None: the clocks taken as one.
+    imu_max_offset_s: float | None = 0.05
     executor: str = "local"
     workers: int = 2
     address: str | None = None
@@ -180,6 +183,8 @@ class SmartmocapOptions:
             raise MocapgraphError(f"workers: a whole number of processes >= 1, got {self.workers!r}")
         if self.cameras_from is not None and self.cameras_from not in CAMERA_SOURCES:
             raise MocapgraphError(f"cameras_from {self.cameras_from!r}: choose one of {', '.join(CAMERA_SOURCES)}")
+        if self.imu_max_offset_s is not None and not (isinstance(self.imu_max_offset_s, (int, float)) and 0 < self.imu_max_offset_s <= 1.0):
+            raise MocapgraphError(f"imu_max_offset_s: a number of seconds in (0, 1] or None, got {self.imu_max_offset_s!r}")
         if len(self.reference_sigmas) != 2 or not all(np.isfinite(v) and v > 0 for v in self.reference_sigmas):
             raise MocapgraphError(f"reference_sigmas: two finite numbers > 0 (rad, m), got {self.reference_sigmas!r}")
 
@@ -438,12 +443,9 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     notes += _degeneracy_notes(model, placed)
     imu, imu_skipped = camera_imus(capture) if options.imu else ({}, [])
     notes += imu_skipped
-    for c, readings in imu.items():
-        # the views' per-frame rotations of a moving camera are noisy and sometimes flipped: its
-        # gyroscope's track, turned onto them as a whole, starts every solve instead
-        times = model.cameras[c].timestamps
-        for run in covered_runs(readings, model.camera_frames(c), times):
-            start.cameras[c][run, :3, :3] = gyro_aligned_rotations(readings, times[run], start.cameras[c][run, :3, :3], options.graph.imu_noise)
+    # the views' per-frame rotations of a moving camera are noisy and sometimes flipped: its
+    # gyroscope's track, turned onto them as a whole, starts every solve instead
+    start_from_gyroscopes(imu, model, start.cameras, options.graph.imu_noise)
     for note in notes:
         log.info("smartmocap: %s", note)
     n = model.num_states
@@ -453,6 +455,10 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     solved = _solve_chunks(tasks, options)
     chunk_seconds = [s for _, s in solved]
     stitched = stitch(body, model, [(a, b, est) for (a, b), (est, _) in zip(bounds, solved)])
+    clock_offsets: dict[int, float] = {}
+    if imu and options.imu_max_offset_s is not None:
+        # each log's clock against its camera's, on the stitched body (docs/phone-imu.md)
+        imu, clock_offsets = estimated_clock_offsets(body, model, stitched, imu, options.imu_max_offset_s, options.graph.imu_noise)
     log.info("smartmocap: chunks %.2f s median; stitched; final optimisation", np.median(chunk_seconds))
 
     learned = LearnedPriors.load(options.graph.pose_prior, options.motion_prior)
@@ -529,7 +535,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
                          f"{100 * np.linalg.norm(fit.offsets, axis=1).max(initial=0):.1f} cm" + (f"; {', '.join(fit.dropped)} implausible, not used" if fit.dropped else ""))  # fmt: skip
         for c, parts in sorted(left_out.items()):
             frames = np.sort(np.concatenate(parts))
-            notes.append(f"camera {model.names[c]}: {len(frames)} frames left out of the last pass, explained far worse than the others (frames {_ranges(frames)})")
+            notes.append(f"camera {model.names[c]}: {len(frames)} frames left out of the last pass, explained far worse than the others (frames {frame_ranges(frames)})")
         if joint:
             fits = [replace(fit, offsets=offsets[fit.fmt]) for fit in fits]
             notes += [f"{fit.fmt} keypoints: the offsets of {', '.join(options.graph.offset_parts)} points estimated with the body: "
@@ -550,7 +556,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             estimate.log += list(solved_final.log)
             labels = bg.relabelled(estimate)
     swaps = combined_swaps(model, before, labels)
-    notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + camera_support_notes(bg)
+    notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + imu_support_notes(bg, clock_offsets)
     reprojection = reprojection_medians(body, model.relabelled(labels), estimate, offsets)
     log.info("smartmocap: reprojection median %.1f px (per camera %s)", reprojection["all"], reprojection["camera"])
     seconds = time.perf_counter() - t_start
@@ -566,6 +572,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes,
         focal_px=bg.focal_lengths(estimate), reprojection_px=reprojection,
         keypoint_offsets_m={fit.fmt: fit.as_table() for fit in fits} if options.keypoint_offsets else {},
+        imu_clock_offsets_s={model.names[c]: round(float(o), 5) for c, o in clock_offsets.items() if np.isfinite(o)},
     )
     return result
 
@@ -615,36 +622,6 @@ def with_model_error(covariances: dict[str, np.ndarray], bg: BodyGraph, factors:
         if key in out:
             out[key] = (moving if bg.model.cameras[c].moving else static) * covariances[key]
     return out
-
-
-def camera_support_notes(bg: BodyGraph) -> list[str]:
-    """Per estimated moving camera, what its poses rest on: its views of the body (through which
-    the other cameras), the constant-velocity model if used, and its IMU over which frames."""
-    notes = []
-    model = bg.model
-    views = "its views of the body (the other cameras through the body)" + (" and the constant-velocity model" if bg.options.camera_sigma_m_s2 is not None else "")
-    for c in bg.estimated:
-        if not model.cameras[c].moving:
-            continue
-        name, frames = model.names[c], model.camera_frames(c)
-        if c not in bg.imu or not bg.imu_steps[c]:
-            why = "no IMU log" if c not in bg.imu else "its IMU log covers none of its frame steps"
-            notes.append(f"camera {name}: {why}; its poses rest on {views}")
-            continue
-        missing = np.setdiff1d(frames, bg.imu_frames(c))
-        notes.append(
-            f"camera {name}: IMU on {len(bg.imu_steps[c])} of {len(frames) - 1} frame steps: rotation increments from the gyroscope, "
-            f"velocity changes from the accelerometer; its position still rests on {views}"
-            + (f"; frames {_ranges(missing)} without IMU on those alone" if len(missing) else "")
-            + "; the log's clock taken as the camera's"
-        )
-    return notes
-
-
-def _ranges(frames: np.ndarray) -> str:
-    """``[3, 4, 5, 9]`` → ``"3-5, 9"``."""
-    runs = np.split(frames, np.flatnonzero(np.diff(frames) > 1) + 1)
-    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}" for r in runs if len(r))
 
 
 def final_pass(
