@@ -199,3 +199,20 @@ def test_airpose_plus_relabels_two_moving_cameras(airpose):
     assert tp / (tp + fp) >= 0.95 and tp / (tp + fn) >= 0.95, (tp, fp, fn)
     metrics = evaluate(result, airpose).metrics
     assert metrics["pa_mpjpe_m"] < 0.03 and camera2_position_error_m(result, airpose) < 1.3
+
+
+def test_static_phones_swaps_found_before_placement():
+    """Before anything is placed, two static phones' epipolar geometry tells that a frame's labels
+    disagree, not whose; each phone's own 2D track, jumping where a swapped run starts and ends,
+    does. On 3 s of ``phones`` (seed 0) the swapped static frames against the simulator's record:
+    17 of 17 found, none wrongly (measured; from the geometry alone 5 found and 4 frames of the
+    clean phone relabelled)."""
+    from mocapgraph.graphs.initialisation import view_swaps
+    from mocapgraph.pipelines.observations import capture_state_model
+
+    capture = synthesize("phones", seed=0, duration_s=3.0)
+    model = capture_state_model(capture, "closest")
+    codes = view_swaps(model)
+    tp, fp, fn = swap_confusion(capture, {model.names[c]: found for c, found in codes.items()})
+    assert tp >= 10, "the static phones should hold sustained swaps"
+    assert tp / (tp + fp) >= 0.95 and tp / (tp + fn) >= 0.95, (tp, fp, fn)
