@@ -191,3 +191,23 @@ def test_carried_camera_behind_a_swapped_detector_placed_behind(body):
     seen_back, ok, turned = moving_cameras_from_static(views(0.3), [K] * 3, start, known, [False, False, True])
     assert ok[2].all() and np.linalg.norm(seen_back[2, :, :3, 3] - truth, axis=1).max() < 0.3
     np.testing.assert_array_equal(turned[2], swapped)  # those frames' labels to be undone: exactly the swapped ones
+
+
+def test_back_views_told_by_the_face():
+    """A face reported at a third of the body's confidence is a back view, at its confidence
+    not; a detector that never reports a face says nothing; a camera that sees the person in
+    fewer than half a window's states is not judged."""
+    from mocapgraph.graphs.initialisation import _seen_from_behind
+
+    kp = np.zeros((40, 17, 3))
+    kp[..., 2] = 0.9
+    kp[:20, :3, 2] = 0.3  # the first 20 states from behind
+    behind = _seen_from_behind(kp)
+    assert behind[:5].all() and not behind[-5:].any()
+    faceless = kp.copy()
+    faceless[:, :3, 2] = np.nan
+    assert not _seen_from_behind(faceless).any()
+    sparse = kp.copy()
+    sparse[::3] = np.nan
+    sparse[1::3] = np.nan
+    assert not _seen_from_behind(sparse).any()

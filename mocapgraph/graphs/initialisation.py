@@ -313,9 +313,12 @@ sides; per camera from behind 0.57-0.77, from the front 1.02-1.07."""
 
 def _seen_from_behind(keypoints: np.ndarray) -> np.ndarray:
     """``(N,)`` bool: the states where a camera's COCO-17 ``keypoints (N, 17, 3)`` show the
-    person's back (:data:`BACK_VIEW_FACE_RATIO`); False where it saw too little to tell."""
+    person's back (:data:`BACK_VIEW_FACE_RATIO`); False where it saw too little to tell, and
+    everywhere when it never reports a face point (a format without them says nothing)."""
     conf = np.nan_to_num(keypoints[..., 2])
     face = conf[:, [COCO17.index(name) for name in FACE_POINTS]].mean(axis=1)
+    if not np.any(face > 0):
+        return np.zeros(len(conf), dtype=bool)
     rest = np.where(conf[:, 5:] > 0, conf[:, 5:], np.nan)
     seen = np.isfinite(rest).any(axis=1)
     body = np.nanmedian(np.where(seen[:, None], rest, 1.0), axis=1)
