@@ -229,3 +229,59 @@ def test_static_cameras_also_scored_as_a_rig_after_their_own_procrustes(rig):
     late = perfect_result(rig, "ground_plane")
     late.cameras["cam1"] = CameraTrack(late.cameras["cam1"].timestamps + 100.0, late.cameras["cam1"].world_T_camera)
     assert evaluate(late, rig).metrics["static_mcpe_procrustes_m"] < 1e-9  # a camera with no frame to compare is left out
+
+
+def test_ground_similarity_keeps_ground_and_up():
+    """Points moved by a turn about Z, a horizontal shift and a scale: recovered exactly. Tilted
+    as well: the fit stays a turn about Z and leaves the tilt in (a similarity would take it out)."""
+    from mocapgraph.data_tools.evaluation.alignment import ground_similarity, umeyama
+
+    rng = np.random.default_rng(3)
+    src = rng.normal(size=(40, 3)) + [0.0, 0.0, 1.0]
+    yaw = rotvec_to_matrix(np.array([0.0, 0.0, 0.7]))
+    dst = 1.2 * src @ yaw.T + [0.5, -2.0, 0.0]
+    fit = ground_similarity(src, dst)
+    assert fit.scale == pytest.approx(1.2, rel=1e-12) and np.allclose(fit.R, yaw, atol=1e-12) and np.allclose(fit.t, [0.5, -2.0, 0.0], atol=1e-12)
+    tilt = rotvec_to_matrix(np.array([0.05, 0.0, 0.0]))
+    tilted = ground_similarity(src @ tilt.T, dst)
+    assert tilted.R[2, 2] == 1.0 and tilted.t[2] == 0.0
+    residual = np.linalg.norm(tilted.apply(src @ tilt.T) - dst, axis=1).mean()
+    assert residual > 0.02 and np.linalg.norm(umeyama(src @ tilt.T, dst, True).apply(src @ tilt.T) - dst, axis=1).mean() < 1e-9
+    with pytest.raises(MocapgraphError, match="no horizontal spread"):
+        ground_similarity(np.array([[0.0, 0, 1], [0, 0, 2]]), np.array([[0.0, 0, 1], [0, 0, 2]]))
+
+
+def test_static_cameras_under_other_alignments(rig):
+    """The body turned by 0.02 rad about the vertical through its joints' centroid, the cameras
+    exact, all moved by a turn about Z, a shift and a scale (the ground kept): aligned over every
+    camera's centres the static cameras are exact; aligned keeping the ground, as far off as after
+    the joints' similarity (the same turn undone, by hand); over the joints and the static
+    cameras in between. The first half of the states turned and the second not: the halves'
+    fits differ by the 0.02 rad. A tilt of the whole result is taken out by a similarity, not by
+    the ground's alignment."""
+    capture = replace(rig, world_frame="Z up, metres, origin on the ground at the subject's start")
+    turn = rotvec_to_matrix(np.array([0.0, 0.0, 0.02]))
+    res = perfect_result(capture, "ground_plane")
+    centroid = res.joints.reshape(-1, 3).mean(0)
+    res.joints = (res.joints - centroid) @ turn.T + centroid
+    m = evaluate(similarity_moved(res, 1.3, rotvec_to_matrix(np.array([0.0, 0.0, -2.0])), np.array([1.0, 4.0, 0.0])), capture).metrics
+    centres = np.stack([p[0, :3, 3] for p in capture.ground_truth.cameras.values()])
+    by_hand = np.linalg.norm((centres - centroid) @ turn - (centres - centroid), axis=1).mean()
+    assert m["static_mcpe_m"] == pytest.approx(by_hand, rel=1e-6) and by_hand > 0.01
+    assert m["static_mcpe_cameras_m"] < 1e-9
+    assert m["static_mcpe_ground_m"] == pytest.approx(by_hand, rel=1e-6)
+    assert 0.0 < m["static_mcpe_scene_m"] < 0.5 * by_hand
+    assert m["alignment_halves_rad"] < 1e-6  # arccos near 1: ~1e-8 of rounding
+
+    half = perfect_result(capture, "ground_plane")
+    first = slice(0, len(half.joints) // 2)
+    half.joints[first] = (half.joints[first] - centroid) @ turn.T + centroid
+    m = evaluate(half, capture).metrics
+    assert m["alignment_halves_rad"] == pytest.approx(0.02, rel=1e-6)
+    distance = np.mean(np.linalg.norm(centres - capture.ground_truth.joints.reshape(-1, 3).mean(0), axis=1))
+    assert m["static_alignment_noise_m"] == pytest.approx(0.01 * distance, rel=1e-6)
+
+    tilt = rotvec_to_matrix(np.array([0.03, 0.0, 0.0]))
+    m = evaluate(similarity_moved(perfect_result(capture, "ground_plane"), 1.0, tilt, np.zeros(3)), capture).metrics
+    assert m["static_mcpe_m"] < 1e-9 and m["static_mcpe_ground_m"] > 0.5 * np.linalg.norm(centres @ tilt.T - centres, axis=1).mean() > 0.01
+    assert "static_mcpe_ground_m" not in evaluate(perfect_result(rig, "ground_plane"), rig).metrics  # a world of unknown up: no ground to keep

@@ -60,22 +60,31 @@ PHONES_VARIANTS = {
 PHONES_REPORTED = (
     "static_mcpe_m", "static_mcoe_rad", "static_mcpe_procrustes_m", "static_mcoe_procrustes_rad", "moving_mcpe_procrustes_m", "moving_mcoe_procrustes_rad",
     "moving_mcpe_m", "moving_mcoe_rad", "mpe_m", "ra_mpjpe_m",
+    "static_mcpe_cameras_m", "static_mcpe_scene_m", "static_mcpe_ground_m", "static_alignment_noise_m",
 )  # fmt: skip
 """``static_mcpe_procrustes_m``: the static phones as a rig after its own Procrustes, how far
-their geometry is from the truth apart from the joints' alignment (on which the goal stays)."""
+their geometry is from the truth apart from the joints' alignment (on which the goal stays);
+``static_mcpe_cameras_m`` / ``_scene_m`` / ``_ground_m``: after the other alignments
+``eval`` reports, and ``static_alignment_noise_m`` the error the joints' alignment alone may put
+on the static phones (docs/metrics.md, "Which alignment for the static cameras")."""
 PHONES_GOALS = {"moving_mcpe_procrustes_m": 0.05, "moving_mcoe_procrustes_rad": 0.03, "static_mcpe_m": 0.02}
 COVERAGE = ("coverage95_joints", "coverage95_cameras")
 """Of the default variant (``imu_gyro``, with covariances), per take: the share of joint and of
 camera-centre errors inside their 95 % ellipsoids (``evaluate.coverage``)."""
 COVERAGE_GOAL = (0.85, 0.99)
+STATIC_GOAL_ON = "imu_gyro_long"
+"""The static phones' goal is judged on the long takes (the issue's 8 s): on 3 s the joints'
+alignment, the world a user gets, rotates by about a degree from one half of a take to the other
+(``static_alignment_noise_m`` 4-9 cm at the far static phone), more than the goal's 2 cm."""
 
 
 def bench_smartmocap(
-    duration_s: float = 10.0, seed: int = 0, motion: str = BENCH_MOTION, workers: int = 2, sections: str = "rich,phones", phones_duration_s: float = 3.0
-) -> dict:
+    duration_s: float = 10.0, seed: int = 0, motion: str = BENCH_MOTION, workers: int = 2, sections: str = "rich,phones", phones_duration_s: float = 3.0,
+    phones_long_s: float = 8.0,
+) -> dict:  # fmt: skip
     """The ``sections`` asked for (comma-separated ``rich``, ``phones``): :func:`bench_rich`
-    with ``duration_s``, ``seed`` and ``motion``; :func:`bench_phones` with ``phones_duration_s``
-    and seeds from ``seed``."""
+    with ``duration_s``, ``seed`` and ``motion``; :func:`bench_phones` with ``phones_duration_s``,
+    ``phones_long_s`` and seeds from ``seed``."""
     wanted = [name.strip() for name in sections.split(",") if name.strip()]
     unknown = [name for name in wanted if name not in ("rich", "phones")]
     if unknown or not wanted:
@@ -84,39 +93,48 @@ def bench_smartmocap(
     if "rich" in wanted:
         out.update(bench_rich(duration_s, seed, motion, workers))
     if "phones" in wanted:
-        out["phones"] = bench_phones(phones_duration_s, seed, workers)
+        out["phones"] = bench_phones(phones_duration_s, seed, workers, long_duration_s=phones_long_s)
     return out
 
 
-def bench_phones(duration_s: float = 3.0, seed: int = 0, workers: int = 2, takes: tuple[str, ...] = PHONES_TAKES) -> dict:
-    """Per take (seed ``seed + k`` for the k-th), every :data:`PHONES_VARIANTS`; metrics after the
-    ground-plane frame's similarity alignment, the moving cameras also after their own Procrustes
-    alignment; seconds per chunk; the medians over the takes and which goals they meet (with IMU)."""
+def bench_phones(duration_s: float = 3.0, seed: int = 0, workers: int = 2, takes: tuple[str, ...] = PHONES_TAKES, long_duration_s: float = 8.0) -> dict:
+    """Per take (seed ``seed + k`` for the k-th), every :data:`PHONES_VARIANTS`, and the default
+    one (``imu_gyro``) again on ``long_duration_s`` of the same take and seed (``imu_gyro_long``;
+    0: not); metrics after the ground-plane frame's similarity alignment, the moving cameras also
+    after their own Procrustes alignment; seconds per chunk; the medians over the takes and
+    which goals they meet (with IMU; the static phones' on the long takes, :data:`STATIC_GOAL_ON`)."""
     default = SmartmocapOptions().graph.camera_sigma_m_s2
     rows: dict[str, dict] = {}
+    runs = [(duration_s, name, variant) for name, variant in PHONES_VARIANTS.items()]
+    if long_duration_s > 0:
+        runs.append((long_duration_s, "imu_gyro_long", PHONES_VARIANTS["imu_gyro"]))
     for k, take in enumerate(takes):
-        capture = synthesize("phones", seed=seed + k, duration_s=duration_s, motion=f"cmu:{take}")
-        for name, (noise, sigma) in PHONES_VARIANTS.items():
-            # without the keypoint-offset passes: five takes in five variants on a shared machine
-            options = SmartmocapOptions(imu=noise is not None, workers=workers, covariances=name == "imu_gyro", keypoint_offsets=False)
+        captures = {d: synthesize("phones", seed=seed + k, duration_s=d, motion=f"cmu:{take}") for d in {d for d, _, _ in runs}}
+        for seconds, name, (noise, sigma) in runs:
+            # without the keypoint-offset passes: five takes in six variants on a shared machine
+            options = SmartmocapOptions(imu=noise is not None, workers=workers, covariances=name.startswith("imu_gyro"), keypoint_offsets=False)
             options.graph = replace(options.graph, camera_sigma_m_s2=default if sigma == "default" else sigma, imu_noise=noise or PHONE_IMU_NOISE)
-            result = run_smartmocap(capture, options)
-            metrics = evaluate(result, capture).metrics
+            result = run_smartmocap(captures[seconds], options)
+            metrics = evaluate(result, captures[seconds]).metrics
             row = {key: round(metrics[key], 4) for key in PHONES_REPORTED + COVERAGE if key in metrics}
             row["seconds_per_chunk"] = result.parameters["seconds_per_chunk"]
+            row["seconds"] = result.parameters["seconds"]
             rows.setdefault(name, {})[f"{take.removesuffix('.npz')}_seed{seed + k}"] = row
             log.info("bench phones: %s seed %d %s: %s", take, seed + k, name, row)  # a long run's rows survive an interruption
     medians = {
-        name: {key: round(float(np.median([r[key] for r in per_take.values() if key in r])), 4) for key in PHONES_REPORTED + ("seconds_per_chunk",)}
+        name: {key: round(float(np.median([r[key] for r in per_take.values() if key in r])), 4) for key in PHONES_REPORTED + ("seconds_per_chunk", "seconds")}
         for name, per_take in rows.items()
     }
+    judged = {key: STATIC_GOAL_ON if key.startswith("static") and STATIC_GOAL_ON in medians else "imu_gyro" for key in PHONES_GOALS}
     return {
-        "preset": "phones", "duration_s": duration_s, "takes": list(takes), "seeds": [seed + k for k in range(len(takes))],
+        "preset": "phones", "duration_s": duration_s, "long_duration_s": long_duration_s, "takes": list(takes), "seeds": [seed + k for k in range(len(takes))],
         "camera_sigma_m_s2_default": default, "goals": PHONES_GOALS, "median": medians, "per_take": rows,
-        "goals_met_with_imu": {key: bool(medians["imu_gyro"][key] <= goal) for key, goal in PHONES_GOALS.items()},
+        "goals_judged_on": judged,
+        "goals_met_with_imu": {key: bool(medians[judged[key]][key] <= goal) for key, goal in PHONES_GOALS.items()},
         "coverage_goal": COVERAGE_GOAL,
         "coverage_met_every_take": {
-            key: all(COVERAGE_GOAL[0] <= row[key] <= COVERAGE_GOAL[1] for row in rows["imu_gyro"].values()) for key in COVERAGE
+            f"{name}.{key}": all(COVERAGE_GOAL[0] <= row[key] <= COVERAGE_GOAL[1] for row in rows[name].values())
+            for name in ("imu_gyro", "imu_gyro_long") if name in rows for key in COVERAGE
         },
     }  # fmt: skip
 

@@ -20,7 +20,8 @@ BENCHES = {
         "(with and without the phones' IMUs and the cameras' motion model)",
         "mocapgraph.benchmarks.smartmocap:bench_smartmocap",
         {"workers": ("parallel chunks", {}), "sections": ("comma-separated: rich, phones", {}),
-         "phones_duration_s": ("seconds of each phones capture", {"flag": "--phones-duration"})},
+         "phones_duration_s": ("seconds of each phones capture", {"flag": "--phones-duration"}),
+         "phones_long_s": ("seconds of the long phones captures the default variant is run on again (0: none)", {"flag": "--phones-long"})},
     ),
     "faults": (
         "SmartMocap with realistic detector faults against none, and with swap handling off (rich, phones)",

@@ -33,7 +33,7 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body import load_body_model
-from mocapgraph.body.labelling import part_name
+from mocapgraph.body.labelling import SWAP_KINDS, part_name
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import axis_rotation
 from mocapgraph.data_tools.evaluation.alignment import align_camera_centres
@@ -347,14 +347,23 @@ def _reference_camera(capture: Capture, seen: list[bool]) -> int:
     return seen.index(True)
 
 
-def initial_estimate(model: StateModel, body: BodyModel, options: SmartmocapOptions, reference: int, notes: list[str]) -> tuple[Estimate, list[bool], str]:
+def initial_estimate(
+    model: StateModel, body: BodyModel, options: SmartmocapOptions, reference: int, notes: list[str]
+) -> tuple[Estimate, list[bool], str, dict[int, np.ndarray]]:
     """Body and cameras in SmartMocap's world from the views; which cameras could be placed;
-    which initialiser gave the views."""
+    which initialiser gave the views; per moving camera with back views its detector labelled as
+    front ones, ``(F_c,)`` the swap codes of its frames that undo them (``StateModel.relabelled``)."""
     views, used = view_bodies(model, body, options.initialiser)
     notes.append(f"initialised from the {used}")
     moving = [cam.moving for cam in model.cameras]
     ref_T_c, known = relative_cameras(views, moving, reference)
-    ref_T_c, known = moving_cameras_from_static(coco_views(model), model.camera_matrices(), ref_T_c, known, moving)
+    ref_T_c, known, back_views = moving_cameras_from_static(coco_views(model), model.camera_matrices(), ref_T_c, known, moving)
+    back_swaps = {}
+    for c, turned in back_views.items():
+        frames = model.camera_frames(c)
+        codes = np.zeros(len(model.cameras[c].timestamps), dtype=np.int8)
+        codes[frames] = np.where(turned[model.frame_state[c][frames]], SWAP_KINDS.index("body"), 0)
+        back_swaps[c] = codes
     placed = [bool(known[c].any()) for c in range(model.num_cameras)]
     fused = fuse_bodies(views, ref_T_c, known)
     shape = fused_shape(body, fused)
@@ -366,7 +375,7 @@ def initial_estimate(model: StateModel, body: BodyModel, options: SmartmocapOpti
         )
     world_T_ref = np.linalg.inv(ground.ref_T_world)
     cameras = [model.frames_from_states(c, world_T_ref @ ref_T_c[c]) for c in range(model.num_cameras)]
-    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, cameras), placed, used
+    return Estimate(world_T_ref @ fused.camera_T_root, fused.pose, shape, cameras), placed, used, back_swaps
 
 
 def _solve_chunks(tasks: list[ChunkTask], options: SmartmocapOptions) -> list[tuple[Estimate, float]]:
@@ -435,7 +444,10 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     # Swapped views are undone before they place the cameras, by the views' epipolar geometry.
     before = view_swaps(model) if options.graph.swaps else {}
     model = model.relabelled(before)
-    start, placed, used = initial_estimate(model, body, options, reference, notes)
+    start, placed, used, back_swaps = initial_estimate(model, body, options, reference, notes)
+    if options.graph.swaps and back_swaps:
+        before = {**before, **back_swaps}
+        model = model.relabelled(back_swaps)
     for c, name in enumerate(model.names):
         if not placed[c]:
             notes.append(f"camera {name}: never saw the person together with the reference camera {model.names[reference]}; not estimated")

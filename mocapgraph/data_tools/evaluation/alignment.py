@@ -267,6 +267,36 @@ def procrustes_trajectory(
     return Similarity(scale, Q, ref_mean - scale * Q @ est_mean)
 
 
+def ground_similarity(source: np.ndarray, target: np.ndarray) -> Similarity:
+    """The similarity that keeps the ground (z = 0) and the up direction (+Z) of both frames:
+    a turn about Z, a horizontal translation and a scale about the origin, minimising
+    ``Σ ‖target_i − (s R_z source_i + t)‖²`` over ``source, target (N, 3)`` (NaN rows ignored).
+    Between two ground-plane frames it leaves in what a similarity would take out: how far the
+    source's ground and up are from the target's.
+
+    Raises:
+        MocapgraphError: mismatched shapes; fewer than 2 usable rows; no horizontal spread."""
+    source = check_array(source, Where("source"), (None, 3), allow_nan=True)
+    target = check_array(target, Where("target"), (source.shape[0], 3), allow_nan=True)
+    usable = _finite_rows(source) & _finite_rows(target)
+    if usable.sum() < 2:
+        raise MocapgraphError(f"source/target: need at least 2 rows finite in both, got {int(usable.sum())}")
+    p, q = source[usable], target[usable]
+    pc, qc = p[:, :2] - p[:, :2].mean(0), q[:, :2] - q[:, :2].mean(0)
+    cross = np.sum(pc[:, 0] * qc[:, 1] - pc[:, 1] * qc[:, 0])
+    dot = np.sum(pc * qc)
+    spread = np.sum(pc**2) + np.sum(p[:, 2] ** 2)
+    if not spread > 0 or not np.hypot(cross, dot) > 0:
+        raise MocapgraphError("source/target: no horizontal spread; the turn about Z is not determined")
+    angle = np.arctan2(cross, dot)
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    # with the turn fixed, the scale's least squares over the centred horizontal parts and the heights
+    scale = (np.sum((pc @ R[:2, :2].T) * qc) + np.sum(p[:, 2] * q[:, 2])) / spread
+    t = np.r_[q[:, :2].mean(0) - scale * R[:2, :2] @ p[:, :2].mean(0), 0.0]
+    return Similarity(scale, R, t)
+
+
 MIN_ALIGNMENT_CAMERAS = 3
 """Camera centres of at least this many cameras fix a similarity (two leave the rotation about
 their baseline free)."""

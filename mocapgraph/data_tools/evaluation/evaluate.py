@@ -8,8 +8,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mocapgraph.body import load_body_model
+from mocapgraph.body.rotations import relative_angle
 from mocapgraph.data_tools.evaluation import metrics as M
-from mocapgraph.data_tools.evaluation.alignment import MIN_ALIGNMENT_CAMERAS, Similarity, align_camera_centres, procrustes_trajectory, umeyama
+from mocapgraph.data_tools.evaluation.alignment import MIN_ALIGNMENT_CAMERAS, Similarity, align_camera_centres, ground_similarity, procrustes_trajectory, umeyama
 from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import PER_FRAME_CAMERA, CameraTrack, Result
@@ -214,9 +215,64 @@ def _static_rig(static_est: list[np.ndarray], static_ref: list[np.ndarray]) -> d
     return {"static_mcpe_procrustes_m": float(M.mcpe_m(moved, ref)), "static_mcoe_procrustes_rad": float(M.mcoe_rad(moved, ref))}
 
 
+def _static_alignments(raw: Result, capture: Capture) -> dict[str, float]:
+    """The static cameras' error under alignments other than the evaluation's similarity over
+    the joints, and how well the joints fix that one's rotation (``docs/metrics.md``,
+    "Which alignment for the static cameras"), for a result in a world of its own
+    (``ground_plane``) with body parameters and two or more static cameras with ground truth:
+
+    - ``static_mcpe_cameras_m``: after the similarity over every camera's centres, each camera
+      weighing the same (:func:`align_camera_centres`, the self-calibrations' convention; needs
+      three cameras);
+    - ``static_mcpe_scene_m``: after the similarity over the joints and the static cameras'
+      centres, all joints together weighing as much as one camera: the rotation then rests on the
+      cameras metres apart, but it is fitted to the cameras it scores;
+    - ``static_mcpe_ground_m``: after the similarity that keeps the result's ground and up
+      (:func:`ground_similarity` over the joints), when the capture's world is Z up on the ground:
+      the result's tilt counts;
+    - ``alignment_halves_rad``: the angle between the joints' similarities over the first and the
+      second half of the states; ``static_alignment_noise_m``: half of it (the full fit's share
+      if the halves' errors were independent) times the static cameras' mean distance from the
+      joints' centroid, the error the alignment alone may put on them.
+    """
+    if raw.world_frame != "ground_plane" or not raw.has_body_parameters:
+        return {}
+    gt = capture.ground_truth
+    have, sel = matched_truth(raw, gt)
+    est_j, ref_j = raw.joints[have], gt.joints[sel]
+    usable = np.isfinite(est_j).all(-1)
+    cameras = {n: (e[:, :3, 3], r[:, :3, 3]) for n, (e, r) in matched_cameras(raw, capture).items() if len(e)}
+    static = [n for n in cameras if not capture.camera(n).moving]
+    if len(static) < 2 or usable.sum() < 6:
+        return {}
+
+    def static_error(fit: Similarity) -> float:
+        return float(np.mean(np.concatenate([np.linalg.norm(fit.apply(cameras[n][0]) - cameras[n][1], axis=1) for n in static])))
+
+    joints = (est_j[usable], ref_j[usable])
+    out: dict[str, float] = {}
+    if len(cameras) >= MIN_ALIGNMENT_CAMERAS:
+        out["static_mcpe_cameras_m"] = static_error(align_camera_centres([e for e, _ in cameras.values()], [r for _, r in cameras.values()]))
+    weights = np.concatenate([np.full(len(joints[0]), 1.0 / len(joints[0]))] + [np.full(len(cameras[n][0]), 1.0 / len(cameras[n][0])) for n in static])
+    scene = umeyama(np.concatenate([joints[0]] + [cameras[n][0] for n in static]), np.concatenate([joints[1]] + [cameras[n][1] for n in static]), True, weights)
+    out["static_mcpe_scene_m"] = static_error(scene)
+    if "z up" in capture.world_frame.lower() and "on the ground" in capture.world_frame.lower():
+        out["static_mcpe_ground_m"] = static_error(ground_similarity(*joints))
+    half = len(est_j) // 2
+    try:
+        first, second = (umeyama(est_j[part][usable[part]], ref_j[part][usable[part]], True) for part in (slice(0, half), slice(half, None)))
+    except MocapgraphError:  # a half too short or degenerate: no spread to report
+        return out
+    out["alignment_halves_rad"] = float(relative_angle(first.R, second.R))
+    centroid = joints[1].mean(axis=0)
+    out["static_alignment_noise_m"] = 0.5 * out["alignment_halves_rad"] * float(np.mean([np.linalg.norm(cameras[n][1].mean(0) - centroid) for n in static]))
+    return out
+
+
 def evaluate(result: Result, capture: Capture) -> Evaluation:
     """All metrics that the result's contents allow, against the capture's ground truth; with
     covariances, the share of errors inside their 95 % ellipsoids (``coverage95_*``, :func:`coverage`)."""
+    raw = result
     result, how = aligned(result, capture)
     gt = capture.ground_truth
     have, sel = matched_truth(result, gt)
@@ -277,6 +333,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         out["static_mcpe_m"] = float(M.mcpe_m(np.concatenate(static_est), np.concatenate(static_ref)))
         out["static_mcoe_rad"] = float(M.mcoe_rad(np.concatenate(static_est), np.concatenate(static_ref)))
         out.update(_static_rig(static_est, static_ref))
+        out.update(_static_alignments(raw, capture))
     if moving_est:
         # after the result's alignment only (the ground-plane frame's similarity), not per camera
         out["moving_mcpe_m"] = float(M.mcpe_m(np.concatenate([e for e, _ in moving_est]), np.concatenate([r for _, r in moving_est])))
