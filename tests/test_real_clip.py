@@ -216,3 +216,22 @@ def test_track_files_round_trip_and_errors(clip, tmp_path):
     np.savez(tmp_path / "coco.npz", **arrays)
     with pytest.raises(MocapgraphError, match=r"coco.npz: tracks_cam02: expected shape \(N, N, 33, 3\)"):
         load_track_set(tmp_path / "coco.npz")
+
+
+@pytest.mark.slow  # one SmartMocap run on the clip, four offset rounds: 1.5-3 min on two shared cores
+def test_the_definitions_table_reproduces_from_the_clip():
+    """``mocapgraph bench definitions`` (the cameras held at the lab's calibration, the offsets
+    measured from zero) gives the committed BlazePose table back to within 3 mm per component
+    (the solvers' run-to-run change; the table's largest entries are 1-3 cm), reports the
+    reprojection of every body point, and says where the table came from."""
+    from mocapgraph.body.definition_priors import FITTED_OFFSETS_M, PROVENANCE
+
+    fit = real.fit_clip_offsets(real.DEFAULT_CLIP)
+    assert fit["format"] == "blazepose33" and fit["committed_m"] == FITTED_OFFSETS_M["blazepose33"]
+    assert set(fit["offsets_m"]) == set(FITTED_OFFSETS_M["blazepose33"])
+    for name, value in fit["offsets_m"].items():
+        np.testing.assert_allclose(value, FITTED_OFFSETS_M["blazepose33"][name], atol=0.003, err_msg=name)
+    points = fit["reprojection_px"]["keypoint"]["blazepose33"]
+    assert {"left_hip", "right_hip", "left_heel", "right_foot_index", "nose"} <= set(points) and "left_pinky" not in points
+    assert set(fit["reprojection_px"]["camera"]) == {"cam01", "cam02", "cam03", "cam04"}
+    assert "tests/data/real" in PROVENANCE["blazepose33"]["clip"] and "bench definitions" in PROVENANCE["blazepose33"]["command"]
