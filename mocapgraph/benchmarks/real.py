@@ -351,12 +351,19 @@ FIT_ROUNDS = 4
 """Offset rounds of the definitions' fit: on the lab clip its offsets moved less than 1 mm in a fifth."""
 
 
-def fit_clip_offsets(clip: str | Path | None = None, person: str | int = "largest", rounds: int = FIT_ROUNDS) -> dict:
+FREE_CAMERAS = "cam03"
+"""Cameras the definitions' fit leaves free: the lab's pose of cam03 disagrees with its detections
+(free points triangulated from the lab's cameras reproject there at 37 px median, at 6-8 px in
+the others; README, *Real footage*)."""
+
+
+def fit_clip_offsets(clip: str | Path | None = None, person: str | int = "largest", rounds: int = FIT_ROUNDS, free: str = FREE_CAMERAS) -> dict:
     """The detector format's keypoint-definition offsets on the clip, the cameras held at the lab's
-    calibration: SmartMocap with the lab's intrinsics, every static camera moved to its lab pose
-    once the swaps are settled (``run_smartmocap(held_cameras=...)``, in the solve's world and
-    scale) and held, the offsets measured in ``rounds`` from zero (``offset_prior="zero"``: the
-    table this fit makes is never its own start).
+    calibration: SmartMocap with the lab's intrinsics, every camera but those of ``free``
+    (comma-separated names) moved to its lab pose once the swaps are settled
+    (``run_smartmocap(held_cameras=...)``, in the solve's world and scale) and held, the offsets
+    measured in ``rounds`` from zero (``offset_prior="zero"``: the table this fit makes is never
+    its own start).
 
     Returns:
         ``{"clip", "format", "person", "rounds", "offsets_m": {point: [x, y, z] metres, left and
@@ -368,7 +375,8 @@ def fit_clip_offsets(clip: str | Path | None = None, person: str | int = "larges
     from mocapgraph.data_tools.sim.detectors import KEYPOINT_DEFINITION_OFFSETS_M
 
     directory = clip_directory(clip)
-    lab = {c.name: c.world_T_camera for c in lab_calibration(directory)}
+    left_free = {name.strip() for name in free.split(",") if name.strip()}
+    lab = {c.name: c.world_T_camera for c in lab_calibration(directory) if c.name not in left_free}
     with tempfile.TemporaryDirectory(prefix="mocapgraph-fit-offsets-") as tmp:
         path, _ = clip_capture(directory, Path(tmp) / "capture", person, "calibrated")
         capture = load_capture(path)
@@ -377,7 +385,7 @@ def fit_clip_offsets(clip: str | Path | None = None, person: str | int = "larges
     fmt = result.keypoint_format
     fitted = result.parameters["keypoint_offsets_m"].get(fmt, {})
     return {
-        "clip": str(directory), "format": fmt, "person": person, "rounds": rounds,
+        "clip": str(directory), "format": fmt, "person": person, "rounds": rounds, "held": sorted(lab),
         "offsets_m": {name: value for name, value in fitted.items() if not name.startswith("right_")},
         "reprojection_px": result.parameters["reprojection_px"], "committed_m": FITTED_OFFSETS_M.get(fmt),
         "simulator_m": KEYPOINT_DEFINITION_OFFSETS_M.get(fmt), "notes": list(result.parameters["notes"]),

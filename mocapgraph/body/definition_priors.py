@@ -22,17 +22,17 @@ from mocapgraph.body.keypoint_offsets import MIRROR
 FITTED_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] = {
     # MediaPipe Pose (BlazePose GHUM, full model) through `mocapgraph detect`, on the lab clip
     "blazepose33": {
-        "nose": (0.0, -0.0041, -0.0248),
-        "left_eye": (-0.0075, -0.0074, -0.0188),
-        "left_ear": (-0.027, 0.0002, 0.0161),
-        "left_shoulder": (0.0037, 0.0087, -0.0111),
-        "left_elbow": (-0.0143, 0.0002, -0.0064),
-        "left_wrist": (0.0034, 0.0005, 0.0109),
-        "left_hip": (-0.0022, -0.0006, -0.0013),
-        "left_knee": (-0.0051, 0.0092, -0.0066),
-        "left_ankle": (0.0013, 0.0093, -0.0015),
-        "left_heel": (0.0019, 0.014, -0.0049),
-        "left_foot_index": (-0.0011, -0.0013, -0.0103),
+        "nose": (0.0, 0.0037, -0.0115),
+        "left_eye": (-0.0075, 0.0009, -0.0092),
+        "left_ear": (-0.0267, 0.0058, 0.0257),
+        "left_shoulder": (0.004, 0.0098, -0.0034),
+        "left_elbow": (-0.0102, 0.0028, -0.0072),
+        "left_wrist": (0.0058, 0.0015, 0.0115),
+        "left_hip": (-0.001, -0.0037, 0.0036),
+        "left_knee": (-0.0028, 0.0093, -0.0001),
+        "left_ankle": (0.0019, 0.0139, -0.0005),
+        "left_heel": (-0.0006, 0.0164, 0.0002),
+        "left_foot_index": (0.0004, 0.0029, -0.0091),
     },
 }  # fmt: skip
 """Per format, the left and midline points' offsets ``(x left, y up, z forward)`` in metres, in the
@@ -40,8 +40,8 @@ frame of the body segment carrying the point (right points mirror their left par
 
 PROVENANCE: dict[str, dict[str, str]] = {
     "blazepose33": {
-        "clip": "tests/data/real (Pose2Sim Demo_MultiPerson: 4 static cameras, 60 fps, 100 frames; the largest person)",
-        "command": "mocapgraph bench definitions --json (SmartMocap, lab intrinsics, cameras held at the lab's Calib.qca.txt, 4 offset rounds from zero)",
+        "clip": "tests/data/real (Pose2Sim Demo_MultiPerson, the largest person)",
+        "command": "mocapgraph bench definitions --json (SmartMocap, lab intrinsics, cam01, cam02 and cam04 held at the lab's Calib.qca.txt, 4 offset rounds from zero)",
         "date": "2026-11-25",
     },
 }

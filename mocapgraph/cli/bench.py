@@ -43,7 +43,7 @@ BENCHES = {
         "keypoint-definition offsets of the real clip's detector format, the cameras held at the lab's calibration (the table of "
         "mocapgraph.body.definition_priors)",
         "mocapgraph.benchmarks.real:fit_clip_offsets", {"clip": ("the clip's folder (default tests/data/real)", {"type": Path, "metavar": "DIR"}),
-         "person": ("which person", {}), "rounds": ("offset rounds", {})},
+         "person": ("which person", {}), "rounds": ("offset rounds", {}), "free": ("comma-separated cameras not held at the lab's pose", {})},
     ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (

@@ -117,11 +117,13 @@ class SmartmocapOptions:
     # "body": the static cameras as the body's solve leaves them.
     static_cameras: str = "points"
     static_gm_sigma_px: float = 10.0  # Geman-McClure scale of that adjustment
-    # Geman-McClure scale of the body's solve with those cameras held, the last pass: the free
-    # points' (the generic baseline's). At the chunks' and earlier passes' 40 px, a detector's
-    # gross misses (on the lab clip cam02's right foot 150-450 px off for half a second) still
-    # pulled the body: its reprojection median 8.2 px there, 7.0 px at 10 px (cameras as held).
-    held_gm_sigma_px: float | None = 10.0
+    # Geman-McClure scale of the body's solve with those cameras held, the last pass (None: the
+    # graph's, 40 px). At 40 px a detector's gross misses (on the lab clip cam02's right foot
+    # 150-450 px off for half a second) still pull the body: its reprojection median 8.2 px
+    # there, 7.0 px at 10 px (the free points', cameras as held). Not the default: on rich (6 s,
+    # seed 0) 10 px put the pelvis further off without faults (MPE 1.00 -> 1.31 cm, RA-MPJPE
+    # 2.66 -> 2.79) and with realistic ones (1.72 -> 1.74 cm; RA-MPJPE 3.35 -> 3.22, cameras 1.71 -> 1.59).
+    held_gm_sigma_px: float | None = None
     # After the first final pass, every camera-frame's labels checked against all the placed
     # cameras' epipolar geometry (graphs.initialisation.posed_view_swaps) and the sequence solved
     # again on them (with graph.swaps only).
