@@ -7,6 +7,7 @@ flags' defaults (read from its signature, written once).
 from __future__ import annotations
 
 import importlib
+import inspect
 import json
 from pathlib import Path
 
@@ -38,6 +39,12 @@ BENCHES = {
         "mocapgraph.benchmarks.colmap:bench_colmap",
         {"image_scale": ("image size relative to the presets' 1920x1080", {}), "frame_step": ("reconstruct every N-th frame", {}),
          "workers": ("parallel chunks", {}), "presets": ("comma-separated: phones, rich", {})},
+    ),
+    "definitions": (
+        "keypoint-definition offsets of the real clip's detector format, the cameras held at the lab's calibration (the table of "
+        "mocapgraph.body.definition_priors)",
+        "mocapgraph.benchmarks.real:fit_clip_offsets", {"clip": ("the clip's folder (default tests/data/real)", {"type": Path, "metavar": "DIR"}),
+         "person": ("which person", {}), "rounds": ("offset rounds", {}), "free": ("comma-separated cameras not held at the lab's pose", {})},
     ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (
@@ -95,6 +102,7 @@ def add_parsers(subparsers) -> None:
     real.set_defaults(func=cmd_bench_real)
     for name, (help, target, extra) in BENCHES.items():
         parser = command(bench, name, f"{help}; one run, one JSON object")
-        names = function_flags(parser, _function(target), {**COMMON, **extra})
+        fn = _function(target)
+        names = function_flags(parser, fn, {**{k: v for k, v in COMMON.items() if k in inspect.signature(fn).parameters}, **extra})
         parser.add_argument("--json", action="store_true", help="accepted for symmetry with bench body: the output is always JSON")
         parser.set_defaults(func=cmd_bench, bench_parameters=names)

@@ -70,7 +70,7 @@ def add_parsers(subparsers) -> None:
     from mocapgraph.pipelines.baseline import BaselineOptions
     from mocapgraph.pipelines.executors import EXECUTORS
     from mocapgraph.pipelines.reference_cameras import SOURCES as CAMERA_SOURCES
-    from mocapgraph.pipelines.smartmocap import MOTION_PRIORS, STATIC_CAMERAS, SmartmocapOptions
+    from mocapgraph.pipelines.smartmocap import MOTION_PRIORS, OFFSET_PRIORS, STATIC_CAMERAS, SmartmocapOptions
 
     run = group(subparsers, "run", "run a pipeline on a capture", "pipeline")
 
@@ -129,6 +129,7 @@ def add_parsers(subparsers) -> None:
     flags.add("workers", "parallel chunks")
     flags.add("detectors", "comma-separated detector names", type=detector_list, unset="all")
     flags.add("keypoint_offsets", "no last pass with the detector's keypoint-definition offsets (nor its outlier views left out)")
+    flags.add("offset_prior", "the offsets' prior: the table fitted on real footage where the format has one (fitted) or zero; docs/smartmocap.md", choices=OFFSET_PRIORS)
     flags.add("imu", "leave the moving cameras' IMU logs unused (docs/phone-imu.md)")
     flags.add("static_cameras", "three or more static cameras: adjusted last on free points (points) or left as the body's solve puts them (body); docs/smartmocap.md", choices=STATIC_CAMERAS)
     flags.add("covariances", "skip the marginal covariances")

@@ -3,8 +3,8 @@
 With the cameras solved, the views of each body state triangulate each detected point; compared
 in the frame of the segment carrying it (:mod:`mocapgraph.body.keypoint_offsets`) with the body's
 own point, frame after frame, the difference is where the detector format puts that point. Its
-median over the capture, pooled over left and right (mirrored), shrunk towards zero when few
-frames saw it and dropped when larger than any format's measured offset, is the format's offset
+median over the capture, pooled over left and right (mirrored), shrunk towards zero (or a prior
+fitted on real footage, :mod:`mocapgraph.body.definition_priors`) when few frames saw it and dropped when larger than any format's measured offset, is the format's offset
 estimate: :func:`estimate_offsets`. A pipeline solves again with it (:class:`~mocapgraph.graphs.body_graph.BodyGraph`'s
 ``keypoint_offsets``), a step of a joint estimation of body and offsets by alternation.
 
@@ -27,7 +27,7 @@ from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.graphs.state_model import Estimate, StateModel
 
 PRIOR_FRAMES = 30.0
-"""An offset seen in ``n`` frames is shrunk by ``n / (n + PRIOR_FRAMES)`` towards zero."""
+"""An offset seen in ``n`` frames is shrunk by ``n / (n + PRIOR_FRAMES)`` towards zero (or its prior)."""
 MAX_OFFSET_M = 0.08
 """Offsets larger than this are not a definition but a failure (another person, a bad solve): dropped."""
 
@@ -80,9 +80,11 @@ def offsets_from_table(fmt: str, table: dict[str, list[float]]) -> np.ndarray:
     return out
 
 
-def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt: str) -> OffsetFit:
+def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt: str, prior: np.ndarray | None = None) -> OffsetFit:
     """The offsets of format ``fmt``'s points from the body's, at the solve ``estimate`` of ``model``
-    (its observations as the solve labelled them): see the module docstring."""
+    (its observations as the solve labelled them): see the module docstring. With a ``prior``
+    ``(K, 3)`` (:func:`~mocapgraph.body.definition_priors.prior_offsets`) each median is shrunk
+    towards it instead of zero, and a point never seen or dropped keeps it."""
     table, fk = _posed(body, estimate, fmt)
     N, K = fk.keypoints.shape[:2]
     carrier = carrier_joints(table)
@@ -101,13 +103,15 @@ def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt
     groups = [(i, j) for i, j in left_right_pairs(list(names))]
     paired = {k for pair in groups for k in pair}
     groups += [(k, None) for k in range(K) if k not in paired]
+    prior = np.zeros((K, 3)) if prior is None else np.asarray(prior, dtype=float)
+    offsets[table.mapped] = prior[table.mapped]
     dropped = []
     for i, j in groups:
         pooled = samples[:, i] if j is None else np.concatenate([samples[:, i], MIRROR * samples[:, j]])
         pooled = pooled[np.isfinite(pooled).all(axis=1)]
         if not len(pooled):
             continue
-        median = np.median(pooled, axis=0) * len(pooled) / (len(pooled) + PRIOR_FRAMES)
+        median = prior[i] + (np.median(pooled, axis=0) - prior[i]) * len(pooled) / (len(pooled) + PRIOR_FRAMES)
         if j is None:
             median[0] = 0.0  # a midline point has no side to be off towards
         members = [i] if j is None else [i, j]

@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.keypoint_offsets import with_offsets
 from mocapgraph.body.labelling import SWAP_KINDS, then
 from mocapgraph.body.model import BodyModel
+from mocapgraph.body.native import forward_kinematics
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import CameraTrack, Result
@@ -26,6 +28,7 @@ def estimate_result(
     cameras: list[int] | None = None,
     all_frames: bool = False,
     swaps: dict[int, np.ndarray] | None = None,
+    keypoint_offsets: dict[str, np.ndarray] | None = None,
 ) -> Result:
     """The result of a solve of ``model``.
 
@@ -34,14 +37,20 @@ def estimate_result(
         all_frames: write a camera's pose at every frame of the capture (frames outside the
             states keep the estimate's initial value, e.g. a GPS/IMU prior); else only at its
             frames that belong to a body state.
+        keypoint_offsets: per format, ``(K, 3)`` the definition offsets the solve used
+            (:mod:`mocapgraph.body.keypoint_offsets`): the keypoints are then where the body puts
+            the detector's points, the ones its reprojection was measured on.
 
     Joints and keypoints (of the first observed format; NaN for its points the body has no
     counterpart for) come from the body model's forward kinematics; ``flags`` hold each state's detection count and whether it had none.
     """
     fmt = model.formats[0]
     fk = body.forward(estimate.shape, estimate.roots, estimate.poses)
-    keypoints = body.forward(estimate.shape, estimate.roots, estimate.poses, keypoints=fmt).keypoints
-    keypoints[:, ~body.table(estimate.shape, keypoints=fmt).mapped] = np.nan  # points the body has no counterpart for
+    table = body.table(estimate.shape, keypoints=fmt)
+    if keypoint_offsets and fmt in keypoint_offsets:
+        table = with_offsets(table, keypoint_offsets[fmt])
+    keypoints = forward_kinematics(table, estimate.roots, estimate.poses).keypoints
+    keypoints[:, ~table.mapped] = np.nan  # points the body has no counterpart for
     detections = model.detections_per_state()
     result = Result(
         pipeline=pipeline, capture=capture_label or str(capture.path or capture.name), world_frame=world_frame,

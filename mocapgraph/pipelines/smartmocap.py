@@ -33,6 +33,7 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body import load_body_model
+from mocapgraph.body.definition_priors import PROVENANCE, prior_offsets
 from mocapgraph.body.labelling import SWAP_KINDS, part_name
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import axis_rotation
@@ -71,6 +72,7 @@ log = logging.getLogger(__name__)
 
 MOTION_PRIORS = ("vae", "none")
 OFFSET_ESTIMATIONS = ("joint", "alternation")
+OFFSET_PRIORS = ("fitted", "zero")
 STATIC_CAMERAS = ("points", "body")
 REFINE_THRESHOLD_PX = 15.0
 """Inlier threshold of the RANSAC triangulation that starts the static cameras' free points."""
@@ -104,12 +106,24 @@ class SmartmocapOptions:
     # Rounds of: views left out, the sequence solved again, the offsets measured again on it
     # (with "joint": rounds only while more views show up).
     offset_rounds: int = 2
+    # "fitted": a format measured on real footage (body.definition_priors: BlazePose on the lab
+    # clip) starts the rounds at that table and its measures are shrunk towards it; "zero":
+    # every format starts from the first solve's measure, shrunk towards zero (the only choice
+    # for formats never fitted on real footage).
+    offset_prior: str = "fitted"
     # "points": the static cameras adjusted last on free points, as the generic self-calibration
     # does (graphs.point_bundle), then held while the body is solved once more to them: a
     # detector's points are not the body's, and free points absorb that where a body cannot.
     # "body": the static cameras as the body's solve leaves them.
     static_cameras: str = "points"
     static_gm_sigma_px: float = 10.0  # Geman-McClure scale of that adjustment
+    # Geman-McClure scale of the body's solve with those cameras held, the last pass (None: the
+    # graph's, 40 px). At 40 px a detector's gross misses (on the lab clip cam02's right foot
+    # 150-450 px off for half a second) still pull the body: its reprojection median 8.2 px
+    # there, 7.0 px at 10 px (the free points', cameras as held). Not the default: on rich (6 s,
+    # seed 0) 10 px put the pelvis further off without faults (MPE 1.00 -> 1.31 cm, RA-MPJPE
+    # 2.66 -> 2.79) and with realistic ones (1.72 -> 1.74 cm; RA-MPJPE 3.35 -> 3.22, cameras 1.71 -> 1.59).
+    held_gm_sigma_px: float | None = None
     # After the first final pass, every camera-frame's labels checked against all the placed
     # cameras' epipolar geometry (graphs.initialisation.posed_view_swaps) and the sequence solved
     # again on them (with graph.swaps only).
@@ -171,6 +185,10 @@ class SmartmocapOptions:
             raise MocapgraphError(f"chunk_size: the motion prior's windows are {WINDOW} states; use {WINDOW} or motion_prior 'none'")
         if self.offset_estimation not in OFFSET_ESTIMATIONS:
             raise MocapgraphError(f"offset_estimation {self.offset_estimation!r}: choose one of {', '.join(OFFSET_ESTIMATIONS)}")
+        if self.held_gm_sigma_px is not None and not (isinstance(self.held_gm_sigma_px, (int, float)) and np.isfinite(self.held_gm_sigma_px) and self.held_gm_sigma_px > 0):
+            raise MocapgraphError(f"held_gm_sigma_px: a finite number > 0 or None, got {self.held_gm_sigma_px!r}")
+        if self.offset_prior not in OFFSET_PRIORS:
+            raise MocapgraphError(f"offset_prior {self.offset_prior!r}: choose one of {', '.join(OFFSET_PRIORS)}")
         if not (isinstance(self.offset_rounds, int) and self.offset_rounds >= 1):
             raise MocapgraphError(f"offset_rounds: a whole number >= 1, got {self.offset_rounds!r}")
         if self.static_cameras not in STATIC_CAMERAS:
@@ -427,8 +445,12 @@ def _degeneracy_notes(model: StateModel, placed: list[bool]) -> list[str]:
     return notes
 
 
-def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, capture_label: str = "") -> Result:
-    """Run the pipeline on a loaded capture and return the result (nothing written)."""
+def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, capture_label: str = "", held_cameras: dict[str, np.ndarray] | None = None) -> Result:
+    """Run the pipeline on a loaded capture and return the result (nothing written). With
+    ``held_cameras`` (camera name → ``(4, 4)`` world_T_camera of a static camera, in any world and
+    scale: a lab's calibration), after the swaps are settled those cameras are moved there (by
+    the similarity onto the solve's centres, :func:`aligned_to`) and held in every later pass;
+    the keypoint offsets are then measured against a calibrated rig (:func:`mocapgraph.benchmarks.real.fit_clip_offsets`)."""
     options = options or SmartmocapOptions()
     options.check()
     t_start = time.perf_counter()
@@ -509,13 +531,29 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             )
             estimate = bg.read(solved_final.values, estimate)
             estimate.log += list(solved_final.log)
+    # every view the solve was given: the reprojection report counts the ones left out too
+    every_view = model
+    hold: tuple[int, ...] = ()
+    if held_cameras is not None:
+        estimate, hold = held_at(model, estimate, held_cameras)
+        bg, graph, solved_final = final_pass(
+            model, body, options, learned, estimate, {}, options.final_iterations, imu=imu, tracks=tracks, hold=hold, solved_start=True
+        )
+        estimate = bg.read(solved_final.values, estimate)
+        estimate.log += list(solved_final.log)
     offsets: dict[str, np.ndarray] = {}
     if options.keypoint_offsets:
         # the keypoints' definitions seen by the solve, then the solve again with them, without
         # the views it could not explain at all (a detector on someone else for a frame), in
         # rounds that measure them again on the body the last one left
+        priors = {fmt: prior_offsets(fmt) for fmt in model.formats} if options.offset_prior == "fitted" else {}
+        priors = {fmt: prior for fmt, prior in priors.items() if prior is not None}
         solved_model = model.relabelled(bg.relabelled(estimate))
-        fits = [estimate_offsets(body, solved_model, estimate, fmt) for fmt in model.formats]
+        fits = [estimate_offsets(body, solved_model, estimate, fmt, priors.get(fmt)) for fmt in model.formats]
+        # a format fitted on real footage starts at its table: the first measure is taken on a
+        # body that leaned towards the detector's points, and the rounds keep much of that lean
+        # (a wider pelvis explains a lateral hip offset as well as the offset does)
+        fits = [replace(fit, offsets=priors[fit.fmt]) if fit.fmt in priors else fit for fit in fits]
         offsets = {fit.fmt: fit.offsets for fit in fits}
         joint = options.offset_estimation == "joint"
         left_out: dict[int, list[np.ndarray]] = {}
@@ -528,7 +566,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
                 left_out.setdefault(c, []).append(frames)
             model = model.without(outliers)
             bg, graph, solved_final = final_pass(
-                model, body, options, learned, estimate, offsets, options.offset_iterations, estimate_offsets=joint, imu=imu, tracks=tracks
+                model, body, options, learned, estimate, offsets, options.offset_iterations, estimate_offsets=joint, imu=imu, tracks=tracks, hold=hold
             )
             estimate = bg.read(solved_final.values, estimate)
             estimate.log += list(solved_final.log)
@@ -540,11 +578,12 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
                     # measured again on a body that no longer leans towards the detector's
                     # points, they come out nearer the truth each round (rich, 6 s: hips
                     # 2.2 → 2.4 cm of the simulated 3.6 over four rounds, MPE 1.95 → 1.56 cm)
-                    fits = [estimate_offsets(body, solved_model, estimate, fmt) for fmt in model.formats]
+                    fits = [estimate_offsets(body, solved_model, estimate, fmt, priors.get(fmt)) for fmt in model.formats]
                     offsets = {fit.fmt: fit.offsets for fit in fits}
         for fit in fits:
             notes.append(f"{fit.fmt} keypoints: definition offsets estimated from {int(fit.frames.max(initial=0))} frames, up to "
-                         f"{100 * np.linalg.norm(fit.offsets, axis=1).max(initial=0):.1f} cm" + (f"; {', '.join(fit.dropped)} implausible, not used" if fit.dropped else ""))  # fmt: skip
+                         f"{100 * np.linalg.norm(fit.offsets, axis=1).max(initial=0):.1f} cm" + (f"; {', '.join(fit.dropped)} implausible, not used" if fit.dropped else "")
+                         + (f"; prior: the table fitted on {PROVENANCE[fit.fmt]['clip']}" if fit.fmt in priors else "; prior: zero (no fit on real footage)"))  # fmt: skip
         for c, parts in sorted(left_out.items()):
             frames = np.sort(np.concatenate(parts))
             notes.append(f"camera {model.names[c]}: {len(frames)} frames left out of the last pass, explained far worse than the others (frames {frame_ranges(frames)})")
@@ -554,7 +593,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
                       + ", ".join(f"{name} {100 * np.linalg.norm(v):.1f} cm" for name, v in fit.as_table().items() if part_name(name) in options.graph.offset_parts)
                       for fit in fits]  # fmt: skip
     labels = bg.relabelled(estimate)
-    if options.static_cameras == "points":
+    if options.static_cameras == "points" and not hold:
         refined = refine_static_cameras(model, estimate, labels, options.static_gm_sigma_px, REFINE_THRESHOLD_PX, REFINE_ITERATIONS)
         if refined is not None:
             cameras = aligned_to(refined.cameras, estimate)
@@ -562,19 +601,21 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             for c, T in cameras.items():
                 estimate.cameras[c] = np.repeat(T[None], len(estimate.cameras[c]), axis=0)
             bg, graph, solved_final = final_pass(
-                model, body, options, learned, estimate, offsets, options.offset_iterations, imu=imu, tracks=tracks, hold=tuple(refined.cameras)
+                model, body, options, learned, estimate, offsets, options.offset_iterations, imu=imu, tracks=tracks, hold=tuple(refined.cameras),
+                gm_sigma_px=options.held_gm_sigma_px,
             )
             estimate = bg.read(solved_final.values, estimate)
             estimate.log += list(solved_final.log)
             labels = bg.relabelled(estimate)
     swaps = combined_swaps(model, before, labels)
     notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + imu_support_notes(bg, clock_offsets)
-    reprojection = reprojection_medians(body, model.relabelled(labels), estimate, offsets)
+    reprojection = reprojection_medians(body, every_view.relabelled(labels), estimate, offsets)
     log.info("smartmocap: reprojection median %.1f px (per camera %s)", reprojection["all"], reprojection["camera"])
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
     result = estimate_result(
-        "smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(replace(options, checkpoint=None)), capture_label, cameras=placed_cameras, swaps=swaps
+        "smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(replace(options, checkpoint=None)), capture_label, cameras=placed_cameras, swaps=swaps,
+        keypoint_offsets=offsets,
     )
     if options.covariances:
         cov_bg, cov_graph, cov_values = definition_graph(bg, options, learned, estimate, solved_final.values, offsets, imu, tracks)
@@ -639,14 +680,17 @@ def with_model_error(covariances: dict[str, np.ndarray], bg: BodyGraph, factors:
 def final_pass(
     model: StateModel, body: BodyModel, options: SmartmocapOptions, learned: LearnedPriors, start: Estimate, offsets: dict, iterations: int,
     estimate_offsets: bool = False, imu: dict | None = None, tracks: ReferenceTracks | None = None, hold: tuple[int, ...] = (),
-    solved_start: bool = False, relabel: bool = True,
+    solved_start: bool = False, relabel: bool = True, gm_sigma_px: float | None = None,
 ):  # fmt: skip
     """The whole sequence solved from ``start`` with the formats' keypoint ``offsets`` (held, or
     the start of their estimate with ``estimate_offsets``), the cameras' ``imu`` logs and the
     motion priors of a reference's ``tracks``, the cameras of ``hold`` held: its graph builder,
     graph and solve; robust from the first step when ``start`` is a solve's (``solved_start``, or
-    any ``offsets``, ``tracks`` or ``hold``); the labels as the model has them without ``relabel``."""
+    any ``offsets``, ``tracks`` or ``hold``); the labels as the model has them without ``relabel``;
+    Geman-McClure at ``gm_sigma_px`` instead of the graph options' where given."""
     graph_options = replace(options.graph, offsets="estimate") if estimate_offsets else options.graph
+    if gm_sigma_px is not None:
+        graph_options = replace(graph_options, gm_sigma_px=gm_sigma_px)
     bg = BodyGraph(model, body, graph_options, learned=learned, keypoint_offsets=offsets, imu=imu)
     graph, values = sequence_graph(bg, start, options.gauge_sigmas)
     if tracks is not None:
@@ -657,6 +701,20 @@ def final_pass(
         stages = stages[1:]  # from a solved start: robust from the first step
     solved = solve_staged(held(graph, values, bg.held_keys() + [k for k, (c, _) in bg.camera_vars().items() if c in hold]), values, stages, progress="smartmocap final", project=bg.project_shape)
     return bg, graph, solved
+
+
+def held_at(model: StateModel, estimate: Estimate, held_cameras: dict[str, np.ndarray]) -> tuple[Estimate, tuple[int, ...]]:
+    """``estimate`` with the static cameras named in ``held_cameras`` at those poses (moved onto
+    its world by :func:`aligned_to`) and their indices, the cameras to hold."""
+    unknown = sorted(set(held_cameras) - set(model.names))
+    moving = [name for name in held_cameras if name in model.names and model.cameras[model.names.index(name)].moving]
+    if unknown or moving:
+        raise MocapgraphError(f"held cameras: {', '.join(unknown)} not placed in the solve" if unknown else f"held cameras: {', '.join(moving)} moving; only static cameras are held")
+    cameras = aligned_to({model.names.index(name): np.asarray(T, dtype=float) for name, T in held_cameras.items()}, estimate)
+    estimate = replace(estimate, cameras=list(estimate.cameras))
+    for c, T in cameras.items():
+        estimate.cameras[c] = np.repeat(T[None], len(estimate.cameras[c]), axis=0)
+    return estimate, tuple(sorted(cameras))
 
 
 def aligned_to(cameras: dict[int, np.ndarray], estimate: Estimate) -> dict[int, np.ndarray]:

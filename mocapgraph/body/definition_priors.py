@@ -1,0 +1,66 @@
+"""Keypoint-definition offsets fitted on real footage: the prior means of a pipeline's offsets.
+
+A detector format's points sit a few centimetres off the body model's (:mod:`mocapgraph.body.keypoint_offsets`).
+Estimated from one capture alone, part of such an offset is taken up by the body instead (a wider
+pelvis explains a hip point placed laterally as well as the offset does), and which part depends
+on where the estimate starts. A table measured once on real footage, with the cameras held at a
+lab's calibration so that the triangulated points are where the detector put them, is the
+estimate's prior mean and start.
+
+Only formats measured on real footage are in the table; every other format's prior mean is zero.
+The values are never the simulator's (:data:`mocapgraph.data_tools.sim.detectors.KEYPOINT_DEFINITION_OFFSETS_M`):
+a synthetic test of the prior against them would be circular.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.keypoint_offsets import MIRROR
+
+FITTED_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] = {
+    # MediaPipe Pose (BlazePose GHUM, full model) through `mocapgraph detect`, on the lab clip
+    "blazepose33": {
+        "nose": (0.0, 0.0037, -0.0115),
+        "left_eye": (-0.0075, 0.0009, -0.0092),
+        "left_ear": (-0.0267, 0.0058, 0.0257),
+        "left_shoulder": (0.004, 0.0098, -0.0034),
+        "left_elbow": (-0.0102, 0.0028, -0.0072),
+        "left_wrist": (0.0058, 0.0015, 0.0115),
+        "left_hip": (-0.001, -0.0037, 0.0036),
+        "left_knee": (-0.0028, 0.0093, -0.0001),
+        "left_ankle": (0.0019, 0.0139, -0.0005),
+        "left_heel": (-0.0006, 0.0164, 0.0002),
+        "left_foot_index": (0.0004, 0.0029, -0.0091),
+    },
+}  # fmt: skip
+"""Per format, the left and midline points' offsets ``(x left, y up, z forward)`` in metres, in the
+frame of the body segment carrying the point (right points mirror their left partner)."""
+
+PROVENANCE: dict[str, dict[str, str]] = {
+    "blazepose33": {
+        "clip": "tests/data/real (Pose2Sim Demo_MultiPerson, the largest person)",
+        "command": "mocapgraph bench definitions --json (SmartMocap, lab intrinsics, cam01, cam02 and cam04 held at the lab's Calib.qca.txt, 4 offset rounds from zero)",
+        "date": "2026-11-25",
+    },
+}
+"""Per format of :data:`FITTED_OFFSETS_M`: the clip, the command and the date of its fit."""
+
+
+def prior_offsets(fmt: str) -> np.ndarray | None:
+    """``(K, 3)`` metres, carrier frames: format ``fmt``'s fitted offsets (right points mirrored,
+    points absent from the table zero), or None for a format never fitted on real footage."""
+    table = FITTED_OFFSETS_M.get(get_format(fmt).name)
+    if table is None:
+        return None
+    names = get_format(fmt).names
+    out = np.zeros((len(names), 3))
+    for name, value in table.items():
+        out[names.index(name)] = value
+        if name.startswith("left_"):
+            out[names.index("right_" + name[5:])] = MIRROR * np.asarray(value)
+    return out
+
+
+__all__ = ["FITTED_OFFSETS_M", "PROVENANCE", "prior_offsets"]
