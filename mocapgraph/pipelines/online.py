@@ -76,7 +76,7 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
-from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.body.skeleton import JOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.geometry.camera_model import project_points
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.data_tools.io.capture import Camera, Capture, Detector
@@ -172,6 +172,13 @@ class OnlineOptions:
     # RA-MPJPE 51.4 -> 50.7 / 50.2 mm at 10 / 3 rad/s^2; the pitch drift it was meant for is not a
     # jitter a smoothness prior removes (docs/online.md)
     root_sigma_rad_s2: float | None = None
+    # The hip joints' rotations in that constant-velocity prior (rad/s^2; None: as the others).
+    # The pelvis' pitch is what only the pose priors split from the hips' and spine's rotations (the
+    # hip keypoints lie on its left-right axis); at 20 rad/s^2 a step there stays: rich 10 s seed
+    # 0, one camera's whole-body-swap frames at 4.7 s tilted the root by 5 deg for the rest of the
+    # stream (smoothed RA-MPJPE 51.4 mm; 38.4 at 80 rad/s^2, MPJPE 21.8 -> 23.1 mm; seeds 1, 2
+    # within 0.2 mm either way; docs/online.md, "The root's pitch and the shape in the window")
+    hips_sigma_rad_s2: float | None = 80.0
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
     gate_reacquire: int = 10
@@ -248,7 +255,7 @@ class OnlineOptions:
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
         if self.lag_s * self.rate_hz < 2:
             raise MocapgraphError(f"lag_s: the window must hold at least 2 states at {self.rate_hz} Hz, got {self.lag_s} s")
-        for name in ("root_sigma_m_s2", "pose_sigma_rad_s2", "root_sigma_rad_s2"):
+        for name in ("root_sigma_m_s2", "pose_sigma_rad_s2", "root_sigma_rad_s2", "hips_sigma_rad_s2"):
             value = getattr(self, name)
             if value is not None and not (value == "rig" and name == "pose_sigma_rad_s2") and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2: or 'rig'), got {value!r}")
@@ -412,7 +419,13 @@ class OnlineFusion:
             raise MocapgraphError(f"capture {rig.name!r}: no cameras")
         self.kind = options.rig or ("aircap" if any(cam.mount is not None for cam in self.rig.cameras) else "smartmocap")
         pose_sigma = options.pose_sigma_rad_s2
-        self._pose_sigma_rad_s2 = (20.0 if self.kind == "smartmocap" else None) if pose_sigma == "rig" else pose_sigma
+        pose_sigma = (20.0 if self.kind == "smartmocap" else None) if pose_sigma == "rig" else pose_sigma
+        self._pose_sigma_rad_s2 = None
+        if pose_sigma is not None:
+            sigmas = np.full((NUM_JOINTS - 1, 3), float(pose_sigma))
+            if options.hips_sigma_rad_s2 is not None:
+                sigmas[[JOINT_NAMES.index("left_hip") - 1, JOINT_NAMES.index("right_hip") - 1]] = options.hips_sigma_rad_s2
+            self._pose_sigma_rad_s2 = sigmas.ravel()
         self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
         self.body = load_body_model()
         self.record = record
