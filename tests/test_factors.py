@@ -8,6 +8,7 @@ import math
 import gtsam
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
@@ -21,7 +22,7 @@ from mocapgraph.factors.keys import camera_key, pose_key, root_key, shape_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.reprojection_kernel import reproject_numpy
 from mocapgraph.factors.robust import RobustScale
-from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
+from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor, rotation_acceleration_factor
 
 FORMAT = "coco17"
 INTRINSICS = np.array([1000.0, 980.0, 640.0, 360.0])
@@ -704,6 +705,30 @@ def test_camera_acceleration_error_and_jacobian():
     assert factor.error(steady) == pytest.approx(0.0, abs=1e-20)
     with pytest.raises(MocapgraphError, match="3 consecutive"):
         camera_acceleration_factor([1, 2], times[:2], 3.0)
+
+
+def test_rotation_acceleration_factor_penalises_a_change_of_angular_velocity():
+    rng = np.random.default_rng(11)
+    times = np.array([0.0, 0.04, 0.09])
+    poses = [random_pose3(rng, 0.3) for _ in times]
+    values = gtsam.Values()
+    for k, pose in enumerate(poses, start=1):
+        values.insert(k, pose)
+    factor = rotation_acceleration_factor([1, 2, 3], times, 2.0)
+    # independent: scipy's rotation vectors of the two steps
+    R = [Rotation.from_matrix(p.rotation().matrix()) for p in poses]
+    w01, w12 = (R[0].inv() * R[1]).as_rotvec() / 0.04, (R[1].inv() * R[2]).as_rotvec() / 0.05
+    acceleration = (w12 - w01) / ((times[2] - times[0]) / 2)
+    assert factor.error(values) == pytest.approx(0.5 * np.sum((acceleration / 2.0) ** 2), rel=1e-9)
+    assert_jacobians(factor, values)
+    # turning at a constant body-frame rate, anywhere, with any translations: no cost
+    start, omega = Rotation.from_rotvec(rng.normal(size=3)), np.array([0.8, -1.5, 2.0])
+    steady = gtsam.Values()
+    for k, t in enumerate(times, start=1):
+        steady.insert(k, gtsam.Pose3(gtsam.Rot3((start * Rotation.from_rotvec(omega * t)).as_matrix()), rng.normal(size=3)))
+    assert factor.error(steady) == pytest.approx(0.0, abs=1e-20)
+    with pytest.raises(MocapgraphError, match="3 consecutive"):
+        rotation_acceleration_factor([1, 2], times[:2], 2.0)
 
 
 def test_root_smoothness_takes_six_sigmas():

@@ -85,6 +85,43 @@ def camera_acceleration_factor(keys, times, sigma_m_s2: float) -> gtsam.CustomFa
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3), keys, error)
 
 
+def rotation_acceleration_factor(keys, times, sigma_rad_s2: float) -> gtsam.CustomFactor:
+    """Constant angular velocity of three consecutive poses' rotations (e.g. the body's root).
+
+    Residual ``(ω₁₂ − ω₀₁) / ((t₂ − t₀) / 2) / σ`` (3,) with ``ω₀₁ = Log(R₀ᵀ R₁) / (t₁ − t₀)`` and
+    ``ω₁₂ = Log(R₁ᵀ R₂) / (t₂ − t₁)``, rad/s: both in the middle pose's frame (``Log(R₀ᵀ R₁)`` is
+    the rotation's own axis, the same in either of its frames), so a pose turning at a constant
+    body-frame rate costs nothing and the change of rate costs. The translations are free (the
+    centre's is :func:`camera_acceleration_factor`).
+
+    Args:
+        keys: the three Pose3 keys in time order.
+        times: ``(3,)`` their times in seconds, strictly increasing.
+        sigma_rad_s2: standard deviation of the angular acceleration per axis, rad/s².
+    """
+    keys = [int(k) for k in keys]
+    if len(keys) != 3:
+        raise MocapgraphError(f"rotation_acceleration_factor needs 3 consecutive keys, got {len(keys)}")
+    t = as_checked_array(times, "times (seconds)", (3,))
+    second_difference_coefficients(t)  # checks the times increase
+    h1, h2 = t[1] - t[0], t[2] - t[1]
+    k = 2.0 / ((h1 + h2) * float(positive(sigma_rad_s2, "sigma_rad_s2")))
+
+    def error(this, values: gtsam.Values, H) -> np.ndarray:
+        R = [values.atPose3(key).rotation() for key in keys]
+        A, B = R[0].between(R[1]), R[1].between(R[2])
+        a, b = gtsam.Rot3.Logmap(A), gtsam.Rot3.Logmap(B)
+        if H is not None:
+            # right perturbations R_i Exp(d_i): Log(A) moves by Jr⁻¹(a) (d_1 − Aᵀ d_0), Log(B) by Jr⁻¹(b) (d_2 − Bᵀ d_1)
+            Ja, Jb = gtsam.Rot3.LogmapDerivative(a), gtsam.Rot3.LogmapDerivative(b)
+            blocks = (k * Ja @ A.matrix().T / h1, -k * (Jb @ B.matrix().T / h2 + Ja / h1), k * Jb / h2)
+            for i, block in enumerate(blocks):
+                H[i] = np.hstack([block, np.zeros((3, 3))])
+        return k * (b / h2 - a / h1)
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3), keys, error)
+
+
 def second_difference_coefficients(times) -> np.ndarray:
     """``(c0, c1, c2)`` with ``f''(t1) ≈ c0 f(t0) + c1 f(t1) + c2 f(t2)``, exact for quadratics.
 

@@ -24,7 +24,9 @@ weak pose regulariser, and camera variables:
   prior at the bootstrap's estimate: the body states leaving the window leave their information on
   it) for ``static_refine_s``, then held at its estimate; a
   moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
-  SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held.
+  SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held; its shape
+  too, or (``shape="refine"``) the shape is a variable kept in the window as the static cameras
+  are, under a prior that holds the directions the joints barely see.
 
 **Bootstrap.** The first ``bootstrap_s`` seconds are buffered and solved in batch by the pipeline
 the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mode with the
@@ -74,7 +76,7 @@ import numpy as np
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
-from mocapgraph.body.skeleton import NUM_JOINTS
+from mocapgraph.body.skeleton import JOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.geometry.camera_model import project_points
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.data_tools.io.capture import Camera, Capture, Detector
@@ -82,10 +84,10 @@ from mocapgraph.data_tools.io.result import CameraTrack, Result, options_paramet
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.body_priors import pose_regularizer_factor
 from mocapgraph.factors.camera_priors import camera_offset_prior_factor, camera_prior_factor
-from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key, pose_key, root_key
+from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key, pose_key, root_key, shape_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
-from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
+from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor, rotation_acceleration_factor
 from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
 from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation, UpdateReport
 from mocapgraph.graphs.initialisation import resect
@@ -99,6 +101,11 @@ log = logging.getLogger(__name__)
 RIGS = ("aircap", "smartmocap")
 CAMERA_MODES = ("refine", "prior")
 PRIOR_SOURCES = ("auto", "fused", "self_pose")
+# The shape the loop publishes (its state, the gate's and the results' joints) follows the refined
+# estimate once it moved this far (shape units; ~0.5 mm of height): each new shape costs a body
+# table (~10 ms), so a shape creeping at every update is not followed update by update
+_SHAPE_STEP = 1e-3
+_SHAPE_WEAK, _SHAPE_HELD = 0.1, 1e-3  # OnlineFusion._shape_prior
 _SNAP = 1e-6  # a grid fraction this close to 0 or 1 is the grid state itself (as graphs.sync)
 
 
@@ -135,6 +142,15 @@ class OnlineOptions:
     # along: 78 detections gated out at 4-5 min and the cameras moved up to 24 mm there; 5.5 min: MPJPE
     # 20.2-21.3 mm per 30 s against 20.0-20.8 held from 30 s, CPU p50 8.1 against 6.7 ms).
     static_refine_s: float | None = 30.0
+    # The body's shape after the bootstrap: held at the bootstrap's estimate ("hold"), or one
+    # variable kept in the window as the static cameras are ("refine"; every state leaving the
+    # window leaves its information on it), under a prior at the bootstrap's estimate that holds
+    # the directions the joints barely see (OnlineFusion._shape_prior), for ``shape_refine_s``
+    # seconds (None: all along), then held at its estimate. Not the default: on rich 10 s (seeds
+    # 0-2) it moved the shape by under 0.01 and the smoothed MPJPE / MCPE by +0.3-1.9 / +0.3-2.9 mm
+    # (docs/online.md, "The shape in the window").
+    shape: str = "hold"
+    shape_refine_s: float | None = 30.0
     # No relinearisation: with the pose GMM and the re-acquisition it changed no error measured
     # (rich, aircap, a person out of view) and was the p95 (docs/online.md)
     relinearisation: Relinearisation = field(default_factory=lambda: Relinearisation(enabled=False))
@@ -152,6 +168,17 @@ class OnlineOptions:
     # body lost), so not on aircap for now.
     root_sigma_m_s2: float | None = None
     pose_sigma_rad_s2: float | None | str = "rig"
+    # The root rotation's constant angular velocity (rad/s^2, None: off): rich 10 s seed 0, smoothed
+    # RA-MPJPE 51.4 -> 50.7 / 50.2 mm at 10 / 3 rad/s^2; the pitch drift it was meant for is not a
+    # jitter a smoothness prior removes (docs/online.md)
+    root_sigma_rad_s2: float | None = None
+    # The hip joints' rotations in that constant-velocity prior (rad/s^2; None: as the others).
+    # The pelvis' pitch is what only the pose priors split from the hips' and spine's rotations (the
+    # hip keypoints lie on its left-right axis); at 20 rad/s^2 a step there stays: rich 10 s seed
+    # 0, one camera's whole-body-swap frames at 4.7 s tilted the root by 5 deg for the rest of the
+    # stream (smoothed RA-MPJPE 51.4 mm; 38.4 at 80 rad/s^2, MPJPE 21.8 -> 23.1 mm; seeds 1, 2
+    # within 0.2 mm either way; docs/online.md, "The root's pitch and the shape in the window")
+    hips_sigma_rad_s2: float | None = 80.0
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
     gate_reacquire: int = 10
@@ -206,6 +233,8 @@ class OnlineOptions:
             raise MocapgraphError("graph.pose_prior 'vae': not available online (its latents span the whole sequence); choose gmm or none")
         if self.rig is not None and self.rig not in RIGS:
             raise MocapgraphError(f"rig {self.rig!r}: choose one of {', '.join(RIGS)}")
+        if self.shape not in ("hold", "refine"):
+            raise MocapgraphError(f"shape {self.shape!r}: choose hold or refine")
         if self.static_cameras not in ("hold", "refine"):
             raise MocapgraphError(f"static_cameras {self.static_cameras!r}: choose hold or refine")
         sigmas = self.static_camera_sigmas
@@ -216,16 +245,19 @@ class OnlineOptions:
         if self.camera_priors not in PRIOR_SOURCES:
             raise MocapgraphError(f"camera_priors {self.camera_priors!r}: choose one of {', '.join(PRIOR_SOURCES)}")
         self.navigation.check()
-        if self.static_refine_s is not None and not (isinstance(self.static_refine_s, (int, float)) and math.isfinite(self.static_refine_s) and self.static_refine_s > 0):
-            raise MocapgraphError(f"static_refine_s: a finite number of seconds > 0 or None, got {self.static_refine_s!r}")
+        for name in ("static_refine_s", "shape_refine_s"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise MocapgraphError(f"{name}: a finite number of seconds > 0 or None, got {value!r}")
         for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s", "prior_timeout_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
         if self.lag_s * self.rate_hz < 2:
             raise MocapgraphError(f"lag_s: the window must hold at least 2 states at {self.rate_hz} Hz, got {self.lag_s} s")
-        for name, value in (("root_sigma_m_s2", self.root_sigma_m_s2), ("pose_sigma_rad_s2", None if self.pose_sigma_rad_s2 == "rig" else self.pose_sigma_rad_s2)):
-            if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        for name in ("root_sigma_m_s2", "pose_sigma_rad_s2", "root_sigma_rad_s2", "hips_sigma_rad_s2"):
+            value = getattr(self, name)
+            if value is not None and not (value == "rig" and name == "pose_sigma_rad_s2") and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2: or 'rig'), got {value!r}")
         for name in ("gate_min_keypoints", "gate_reacquire", "join_frames", "bootstrap_offset_rounds"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
@@ -387,7 +419,13 @@ class OnlineFusion:
             raise MocapgraphError(f"capture {rig.name!r}: no cameras")
         self.kind = options.rig or ("aircap" if any(cam.mount is not None for cam in self.rig.cameras) else "smartmocap")
         pose_sigma = options.pose_sigma_rad_s2
-        self._pose_sigma_rad_s2 = (20.0 if self.kind == "smartmocap" else None) if pose_sigma == "rig" else pose_sigma
+        pose_sigma = (20.0 if self.kind == "smartmocap" else None) if pose_sigma == "rig" else pose_sigma
+        self._pose_sigma_rad_s2 = None
+        if pose_sigma is not None:
+            sigmas = np.full((NUM_JOINTS - 1, 3), float(pose_sigma))
+            if options.hips_sigma_rad_s2 is not None:
+                sigmas[[JOINT_NAMES.index("left_hip") - 1, JOINT_NAMES.index("right_hip") - 1]] = options.hips_sigma_rad_s2
+            self._pose_sigma_rad_s2 = sigmas.ravel()
         self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
         self.body = load_body_model()
         self.record = record
@@ -395,7 +433,9 @@ class OnlineFusion:
         self.scale = RobustScale(options.graph.gm_sigma_px)
         self.period = 1.0 / options.rate_hz
         self.t0: float | None = None
-        self.shape: np.ndarray | None = None
+        self.shape: np.ndarray | None = None  # the published shape (see _SHAPE_STEP)
+        self._shape_key: int | None = None  # the shape's variable while it is refined
+        self._shape_since: float | None = None
         self.world_frame = "capture" if self.kind == "aircap" else "ground_plane"
         self.smoother = self._new_smoother()
         self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
@@ -610,6 +650,8 @@ class OnlineFusion:
             self._seed_cameras[c] = {float(t): T for t, T in zip(track.timestamps, track.world_T_camera)}
         if self.kind == "smartmocap":
             self._gauge = Estimate(est.roots[:1], est.poses[:1], self.shape, [])
+        if o.shape == "refine":
+            self._shape_key = shape_key()
         self._bootstrapped = True
         self.stats.bootstrap_seconds = time.perf_counter() - start
         self.stats.bootstrap_observations = len(self._buffer)
@@ -949,9 +991,9 @@ class OnlineFusion:
         between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": a} if a else {}
         self._pending.add(
             reprojection_factor(
-                self.body, self._cache(fmt), root_key(i), pose_key(i), None, [view.key], [None if view.key is not None else view.pose],
+                self.body, self._cache(fmt), root_key(i), pose_key(i), self._shape_key, [view.key], [None if view.key is not None else view.pose],
                 np.array([[cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]]]), pixels[None], weights[None], fmt, self.scale,
-                noise_px=o.noise_px, fixed_shape=self.shape, labelling=labelling, **between,
+                noise_px=o.noise_px, fixed_shape=None if self._shape_key is not None else self.shape, labelling=labelling, **between,
             )  # fmt: skip
         )
         self.stats.used += 1
@@ -967,6 +1009,12 @@ class OnlineFusion:
         end = self.open + 1
         o = self.options
         created = []
+        if self._shape_key is not None and not self._in_window(self._shape_key):
+            # its table stays the bootstrap's: without relinearisation every factor on the shape is
+            # linearised there, and the estimate moves by the solution's delta
+            self._pending_values.insert(self._shape_key, self.shape)
+            self._pending_stamps[self._shape_key] = self.t0 + end * self.period
+            self._pending.add(self._shape_prior())
         for k in range(self.newest + 1, end + 1):
             root, pose = self._reacquire(k, *self._predict(k))
             self._pending_values.insert(root_key(k), gtsam.Pose3(root))
@@ -988,13 +1036,14 @@ class OnlineFusion:
                 if o.root_sigma_m_s2 is not None:
                     # the camera's constant-velocity factor, on the root's Pose3 as on a camera's
                     self._pending.add(camera_acceleration_factor([root_key(k - 2), root_key(k - 1), root_key(k)], times, o.root_sigma_m_s2))
+                if o.root_sigma_rad_s2 is not None:
+                    self._pending.add(rotation_acceleration_factor([root_key(k - 2), root_key(k - 1), root_key(k)], times, o.root_sigma_rad_s2))
                 if self._pose_sigma_rad_s2 is not None:
                     self._pending.add(pose_smoothness_factor([pose_key(k - 2), pose_key(k - 1), pose_key(k)], times, self._pose_sigma_rad_s2))
             self.newest = k
             created.append((k, root, pose))
-        if self.options.static_refine_s is not None:
-            self._hold_refined(self.t0 + end * self.period)
-        keep = [*self._static_keys.values(), *self._offsets]
+        self._hold_refined(self.t0 + end * self.period)
+        keep = [*self._static_keys.values(), *self._offsets, *([self._shape_key] if self._shape_key is not None else [])]
         keep = [k for k in keep if self.smoother.holds(k) or self._pending_values.exists(k)]
         try:
             report = self.smoother.update(self._pending, self._pending_values, self._pending_stamps, keep=keep)
@@ -1004,11 +1053,13 @@ class OnlineFusion:
         self.stats.relinearised.append(report.relinearised)
         self.stats.batches += int(report.batch)
         self._pending, self._pending_values, self._pending_stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
+        if self._shape_key is not None and self.smoother.estimate.exists(self._shape_key):
+            self._publish_shape(self.smoother.estimate.atVector(self._shape_key))
         if self.record:
             for k, root, pose in created:
                 if k == end:
                     root, pose = self._state_guess(k)
-                self.filtered[k] = (root, pose)
+                self.filtered[k] = (root, pose, self.shape)
             for c, frames in self._frames.items():
                 for t, f in frames.items():
                     if t in self.filtered_cameras[c] or f.no_prior:
@@ -1023,10 +1074,41 @@ class OnlineFusion:
                 if f.key is not None and self.smoother.estimate.exists(f.key):
                     f.pose = self.smoother.estimate.atPose3(f.key).matrix()
 
+    def _shape_prior(self) -> gtsam.PriorFactorVector:
+        """The refined shape's prior at the published shape: ``graph.shape_prior_sigma`` along the
+        shape directions that move the joints, stiff along the others.
+
+        The directions are the rest joints' Jacobian's right singular vectors; those whose singular
+        value is below ``_SHAPE_WEAK`` of the largest are held (Anny: muscle and weight move the
+        joints by ~1 % of what age and height do; free, they drifted by a whole unit in 10 s of
+        rich, fitting the keypoints' systematic errors along a direction linearised far outside
+        the model's bounds)."""
+        _, d_joints = self._cache("body").state_joints(np.eye(4), np.zeros(3 * (NUM_JOINTS - 1)), self.shape, True)
+        _, values, vt = np.linalg.svd(d_joints.reshape(3 * NUM_JOINTS, -1)[:, 6 + 3 * (NUM_JOINTS - 1) :], full_matrices=False)
+        sigmas = np.where(values >= _SHAPE_WEAK * values[0], self.options.graph.shape_prior_sigma, _SHAPE_HELD)
+        return gtsam.PriorFactorVector(self._shape_key, self.shape, gtsam.noiseModel.Gaussian.Information(vt.T @ np.diag(sigmas**-2.0) @ vt))
+
+    def _publish_shape(self, estimate: np.ndarray, exact: bool = False) -> None:
+        """The refined shape estimate, within the model's bounds, becomes the published one when
+        it moved more than ``_SHAPE_STEP`` (``exact``: whatever it moved)."""
+        lo, hi = self.body.shape_bounds.T
+        estimate = np.clip(estimate, lo, hi)
+        if exact or np.abs(estimate - self.shape).max() > _SHAPE_STEP:
+            self.shape = estimate
+
     def _hold_refined(self, now: float) -> None:
-        """The static cameras refined for ``static_refine_s`` are held from now on at their
-        estimate; their variables, no longer kept, leave the window with the states of their time
-        (the frames already in the window stay explained by them)."""
+        """The static cameras refined for ``static_refine_s`` and the shape refined for
+        ``shape_refine_s`` are held from now on at their estimate; their variables, no longer
+        kept, leave the window with the states of their time (the factors already in the window
+        stay on them)."""
+        if self._shape_key is not None and self.options.shape_refine_s is not None:
+            self._shape_since = now if self._shape_since is None else self._shape_since
+            if now - self._shape_since >= self.options.shape_refine_s and self.smoother.estimate.exists(self._shape_key):
+                self._publish_shape(self.smoother.estimate.atVector(self._shape_key), exact=True)
+                self._shape_key = None
+                log.info("online: shape held from %.1f s at its refined estimate", now)
+        if self.options.static_refine_s is None:
+            return
         for c in list(self._static_keys):
             # the bootstrap's replay starts its cameras' variables with frames from the stream's start
             if now - self._static_since.setdefault(c, now) < self.options.static_refine_s:
@@ -1060,7 +1142,7 @@ class OnlineFusion:
             self._flagged["solver_reset"].add(k)
             self._recent[k] = (root, pose)
             if self.record:
-                self.smoothed[k] = (root, pose)
+                self.smoothed[k] = (root, pose, self.shape)
         self._offsets.clear()
         self.smoother = self._new_smoother()
         factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -1074,6 +1156,11 @@ class OnlineFusion:
             values.insert(key, start)
             factors.add(gtsam.PriorFactorPose3(key, start, gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
             stamps[key] = stamps[root_key(end)]
+        if self._shape_key is not None:
+            # the new window's shape starts at the published one, as sure as the bootstrap's
+            values.insert(self._shape_key, self.shape)
+            factors.add(self._shape_prior())
+            stamps[self._shape_key] = stamps[root_key(end)]
         self._pending, self._pending_values, self._pending_stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
         return self.smoother.update(factors, values, stamps)
 
@@ -1087,7 +1174,7 @@ class OnlineFusion:
                 state = (left.atPose3(key).matrix(), left.atVector(pose_key(k)).reshape(NUM_JOINTS - 1, 3))
                 self._recent[k] = state
                 if self.record:
-                    self.smoothed[k] = state
+                    self.smoothed[k] = (*state, self.shape)
                 self._seed.pop(k, None)
         for k in [k for k in self._recent if k < self.newest - 8]:
             del self._recent[k]
@@ -1158,11 +1245,18 @@ class OnlineFusion:
             idx = np.array(sorted(states))
             roots = np.stack([states[i][0] for i in idx])
             poses = np.stack([states[i][1] for i in idx])
-            joints = self.body.forward(self.shape, roots, poses).joints
+            shapes = np.stack([states[i][2] for i in idx])
+            # each state with the shape published when it was recorded (the refined shape moves
+            # in steps of _SHAPE_STEP: one body table per step)
+            joints = np.empty((len(idx), NUM_JOINTS, 3))
+            distinct, which = np.unique(shapes, axis=0, return_inverse=True)
+            for u, shape in enumerate(distinct):
+                sel = which.ravel() == u
+                joints[sel] = self.body.forward(shape, roots[sel], poses[sel]).joints
             detections = np.array([self.detections.get(int(i), 0) for i in idx])
             result = Result(
                 pipeline="online", capture=capture_label or self.rig.name, world_frame=self.world_frame, timestamps=self.t0 + idx * self.period,
-                joints=joints, body_model=self.body.name, root=roots, pose=poses, shape=self.shape.copy(),
+                joints=joints, body_model=self.body.name, root=roots, pose=poses, shape=shapes[-1].copy(),
                 flags={
                     "num_detections": detections, "unconstrained": detections == 0, "bootstrap": idx < self._bootstrap_states,
                     **{name: np.isin(idx, sorted(states_flagged)) for name, states_flagged in self._flagged.items()},
