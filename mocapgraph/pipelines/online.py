@@ -86,7 +86,7 @@ from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor
-from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
+from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, regularizer_sigmas, swap_hypotheses
 from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation, UpdateReport
 from mocapgraph.graphs.initialisation import resect
 from mocapgraph.graphs.keypoint_fit import offsets_from_table
@@ -152,6 +152,14 @@ class OnlineOptions:
     # body lost), so not on aircap for now.
     root_sigma_m_s2: float | None = None
     pose_sigma_rad_s2: float | None | str = "rig"
+    # The pose regulariser's width on the joints the pose GMM does not model (spine3, collars,
+    # feet; graph.unmodelled_sigma_rad), in the loop and in the bootstrap's batch solve; "rig": 0.2
+    # rad on AirCap rigs, off (0.8 rad, as every joint) on uncalibrated ones. With only 0.8 rad there,
+    # a UAV's whole-body detector flip (not relabelled on UAVs, above) was explained by turning the
+    # upper body round on spine3 (up to 2.4 rad) and then the collars (3.4 rad), kept for a second
+    # by the arms' relabellings it drew (aircap 10 s, smoothed RA-MPJPE seed 0 0.097 -> 0.080 m,
+    # seed 1 0.080 -> 0.066 m; 0.1 rad: 0.088 m on seed 0; docs/online.md).
+    unmodelled_sigma_rad: float | None | str = "rig"
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
     gate_reacquire: int = 10
@@ -224,9 +232,10 @@ class OnlineOptions:
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
         if self.lag_s * self.rate_hz < 2:
             raise MocapgraphError(f"lag_s: the window must hold at least 2 states at {self.rate_hz} Hz, got {self.lag_s} s")
-        for name, value in (("root_sigma_m_s2", self.root_sigma_m_s2), ("pose_sigma_rad_s2", None if self.pose_sigma_rad_s2 == "rig" else self.pose_sigma_rad_s2)):
+        for name, value in (("root_sigma_m_s2", self.root_sigma_m_s2), ("pose_sigma_rad_s2", None if self.pose_sigma_rad_s2 == "rig" else self.pose_sigma_rad_s2),
+                            ("unmodelled_sigma_rad", None if self.unmodelled_sigma_rad == "rig" else self.unmodelled_sigma_rad)):  # fmt: skip
             if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2: or 'rig'), got {value!r}")
+                raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2, unmodelled_sigma_rad: or 'rig'), got {value!r}")
         for name in ("gate_min_keypoints", "gate_reacquire", "join_frames", "bootstrap_offset_rounds"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise MocapgraphError(f"{name}: a whole number >= 1, got {getattr(self, name)!r}")
@@ -388,6 +397,8 @@ class OnlineFusion:
         self.kind = options.rig or ("aircap" if any(cam.mount is not None for cam in self.rig.cameras) else "smartmocap")
         pose_sigma = options.pose_sigma_rad_s2
         self._pose_sigma_rad_s2 = (20.0 if self.kind == "smartmocap" else None) if pose_sigma == "rig" else pose_sigma
+        unmodelled = options.unmodelled_sigma_rad
+        self._graph = replace(options.graph, unmodelled_sigma_rad=(0.2 if self.kind == "aircap" else None) if unmodelled == "rig" else unmodelled)
         self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
         self.body = load_body_model()
         self.record = record
@@ -399,6 +410,7 @@ class OnlineFusion:
         self.world_frame = "capture" if self.kind == "aircap" else "ground_plane"
         self.smoother = self._new_smoother()
         self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
+        self._regularizer_sigmas = regularizer_sigmas(self._graph, self._pose_gmm)
         self._caches: dict[str, ShapeTableCache] = {}
         self._keypoint_offsets: dict[str, np.ndarray] = {}  # by detector format, (K, 3): the bootstrap's
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
@@ -578,7 +590,7 @@ class OnlineFusion:
             fused = self._navigation and o.camera_priors == "fused" and all(c in self._navigation for c, cam in enumerate(self.rig.cameras) if cam.mount is not None)
             options = AircapOptions(
                 mode="sequence", cameras="fixed", prior_source="fused" if fused else "online", sync="grid", grid_hz=o.rate_hz, detectors=detectors,
-                covariances=False, workers=1, graph=replace(o.graph, focal="fixed", shape="estimate"), motion_prior=o.bootstrap_motion_prior if o.rate_hz == 30.0 else "none",
+                covariances=False, workers=1, graph=replace(self._graph, focal="fixed", shape="estimate"), motion_prior=o.bootstrap_motion_prior if o.rate_hz == 30.0 else "none",
             )  # fmt: skip
             result = run_aircap(mini, options)
         else:
@@ -973,7 +985,7 @@ class OnlineFusion:
             self._pending_values.insert(pose_key(k), pose.ravel())
             t = self.t0 + k * self.period
             self._pending_stamps[root_key(k)] = self._pending_stamps[pose_key(k)] = t
-            self._pending.add(pose_regularizer_factor(pose_key(k), o.graph.pose_prior_sigma_rad))
+            self._pending.add(pose_regularizer_factor(pose_key(k), self._regularizer_sigmas))
             if self._pose_gmm is not None:
                 self._pending.add(pose_gmm_factor(pose_key(k), self._pose_gmm))
             if k == 0 and self._gauge is not None:
