@@ -160,6 +160,14 @@ class OnlineOptions:
     # by the arms' relabellings it drew (aircap 10 s, smoothed RA-MPJPE seed 0 0.097 -> 0.080 m,
     # seed 1 0.080 -> 0.066 m; 0.1 rad: 0.088 m on seed 0; docs/online.md).
     unmodelled_sigma_rad: float | None | str = "rig"
+    # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
+    # only while fewer of an update's detections take it than keep their body as detected (decided
+    # at the new states' prediction: when most views see the body flipped, the prediction is
+    # turned round, not their detectors); "none": never (as graph.moving_body_swaps=False).
+    # Always allowed, a body once turned round stayed so (aircap 10 s: 216 of 267 relabellings not
+    # in the truth); never allowed, a flip in one view of three was explained by twisting the body
+    # (docs/online.md).
+    uav_body_swaps: str = "minority"
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
     gate_reacquire: int = 10
@@ -221,6 +229,8 @@ class OnlineOptions:
             raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
+        if self.uav_body_swaps not in ("minority", "none"):
+            raise MocapgraphError(f"uav_body_swaps {self.uav_body_swaps!r}: choose minority or none")
         if self.camera_priors not in PRIOR_SOURCES:
             raise MocapgraphError(f"camera_priors {self.camera_priors!r}: choose one of {', '.join(PRIOR_SOURCES)}")
         self.navigation.check()
@@ -260,6 +270,7 @@ class OnlineStats:
     camera_priors: dict[str, dict[str, int]] = field(default_factory=dict)  # camera → {"fused" | "self_pose": frames}
     solver_resets: int = 0  # smoother updates that threw; the window restarted from the tracker's prediction
     relabelled: int = 0
+    body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many views of their update took one as not (uav_body_swaps)
     bootstrap_seconds: float = 0.0
     bootstrap_observations: int = 0
     busy_seconds: float = 0.0  # inside update() after the bootstrap
@@ -280,7 +291,7 @@ class OnlineStats:
         return {
             "observations": self.observations, "used": self.used, "late_used": self.late_used, "late_dropped": self.late_dropped,
             "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
-            "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
+            "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "latency_cpu_ms": {q: round(float(np.percentile(cpu, p)), 2) if len(cpu) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "solve_ms_p95": round(float(np.percentile(self.solve_seconds, 95)) * 1e3, 2) if self.solve_seconds else None, "batch_steps": self.batches,
@@ -442,6 +453,7 @@ class OnlineFusion:
         # per-state flags of what the loop could not determine (results' flags)
         self._flagged: dict[str, set[int]] = {"no_camera_prior": set(), "camera_prior_coasting": set(), "solver_reset": set()}
         self._pending = gtsam.NonlinearFactorGraph()
+        self._body_votes: list[tuple[Labelling, gtsam.NonlinearFactor]] = []  # UAV detections of the update that may relabel their whole body
         self._pending_values = gtsam.Values()
         self._pending_stamps: dict[int, float] = {}
         self._counts: dict[int, int] = {}
@@ -955,17 +967,19 @@ class OnlineFusion:
             # previous frame, which its variable starts at and is tied to: the hypotheses are
             # decided there. Without it the handheld camera of rich went round the person for
             # each of its detector's whole-body flips (3 m off for 0.7 s, 10 s capture).
-            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap") or (self.kind == "smartmocap" and view.tied)
+            voted = self.kind == "aircap" and cam.moving and self.options.uav_body_swaps == "minority"
+            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap") or (self.kind == "smartmocap" and view.tied) or voted
             labelling = Labelling(swap_hypotheses(self.body, fmt), 0.5 * o.swap_cost_sigmas**2, allowed=allowed)
             view.labellings.append(labelling)
         between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": a} if a else {}
-        self._pending.add(
-            reprojection_factor(
+        factor = reprojection_factor(
                 self.body, self._cache(fmt), root_key(i), pose_key(i), None, [view.key], [None if view.key is not None else view.pose],
                 np.array([[cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]]]), pixels[None], weights[None], fmt, self.scale,
                 noise_px=o.noise_px, fixed_shape=self.shape, labelling=labelling, **between,
-            )  # fmt: skip
-        )
+        )  # fmt: skip
+        self._pending.add(factor)
+        if labelling is not None and labelling.allowed[0, SWAP_KINDS.index("body")] and voted:
+            self._body_votes.append((labelling, factor))
         self.stats.used += 1
         self._last_observed = max(self._last_observed, i + (1 if a else 0))
         if self.record:
@@ -1008,6 +1022,7 @@ class OnlineFusion:
             self._hold_refined(self.t0 + end * self.period)
         keep = [*self._static_keys.values(), *self._offsets]
         keep = [k for k in keep if self.smoother.holds(k) or self._pending_values.exists(k)]
+        self._vote_body_swaps()
         try:
             report = self.smoother.update(self._pending, self._pending_values, self._pending_stamps, keep=keep)
         except RuntimeError as error:  # GTSAM's exceptions (an indeterminant system, ...) come as RuntimeError
@@ -1034,6 +1049,25 @@ class OnlineFusion:
             for f in frames.values():
                 if f.key is not None and self.smoother.estimate.exists(f.key):
                     f.pose = self.smoother.estimate.atPose3(f.key).matrix()
+
+    def _vote_body_swaps(self) -> None:
+        """``uav_body_swaps="minority"``: the update's UAV detections' labellings at the new
+        states' prediction; when as many relabel their whole body as keep it, none may (the
+        prediction is what is turned round)."""
+        votes, self._body_votes = self._body_votes, []
+        if not votes:
+            return
+        values = gtsam.Values(self.smoother.estimate)
+        values.insert(self._pending_values)
+        body = SWAP_KINDS.index("body")
+        flipped = 0
+        for labelling, factor in votes:
+            factor.error(values)  # sets labelling.choice at these values
+            flipped += int(labelling.choice[0] == body)
+        if flipped and 2 * flipped >= len(votes):
+            for labelling, _ in votes:
+                labelling.allowed[0, body] = False
+            self.stats.body_swaps_refused += flipped
 
     def _hold_refined(self, now: float) -> None:
         """The static cameras refined for ``static_refine_s`` are held from now on at their
