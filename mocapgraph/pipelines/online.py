@@ -61,6 +61,7 @@ pose its frames were explained with). ``docs/online.md`` has the numbers.
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import time
@@ -423,6 +424,7 @@ class OnlineFusion:
         self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
         self._regularizer_sigmas = regularizer_sigmas(self._graph, self._pose_gmm)
         self._caches: dict[str, ShapeTableCache] = {}
+        self._hypotheses: dict[str, np.ndarray] = {}  # by keypoint format, its (H, K) labelling hypotheses
         self._keypoint_offsets: dict[str, np.ndarray] = {}  # by detector format, (K, 3): the bootstrap's
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
         self._buffer: list[StreamFrame] = []
@@ -771,9 +773,9 @@ class OnlineFusion:
         samples = self._self_pose[c]
         if cam.mount is None or not samples:
             return None
-        times = np.fromiter((s[0] for s in samples), float, len(samples))
-        k = int(np.searchsorted(times, t))
-        if min(abs(t - times[max(k - 1, 0)]), abs(times[min(k, len(times) - 1)] - t)) > self.options.prior_timeout_s:
+        # (t,) sorts before a sample at t: the samples' times, searched without building an array of them
+        k = bisect.bisect_left(samples, (t,))
+        if min(abs(t - samples[max(k - 1, 0)][0]), abs(samples[min(k, len(samples) - 1)][0] - t)) > self.options.prior_timeout_s:
             return None  # an outage: holding the last sample would hold a moving camera still
         near = [samples[j] for j in range(max(k - 2, 0), min(k + 2, len(samples)))]  # the neighbours online_track interpolates
         log_ = {"self_pose": {"t": np.array([s[0] for s in near]), "rotation": np.array([s[1] for s in near]), "position": np.array([s[2] for s in near])}}
@@ -969,7 +971,9 @@ class OnlineFusion:
             # each of its detector's whole-body flips (3 m off for 0.7 s, 10 s capture).
             voted = self.kind == "aircap" and cam.moving and self.options.uav_body_swaps == "minority"
             allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap") or (self.kind == "smartmocap" and view.tied) or voted
-            labelling = Labelling(swap_hypotheses(self.body, fmt), 0.5 * o.swap_cost_sigmas**2, allowed=allowed)
+            if fmt not in self._hypotheses:
+                self._hypotheses[fmt] = swap_hypotheses(self.body, fmt)
+            labelling = Labelling(self._hypotheses[fmt], 0.5 * o.swap_cost_sigmas**2, allowed=allowed)
             view.labellings.append(labelling)
         between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": a} if a else {}
         factor = reprojection_factor(
