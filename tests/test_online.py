@@ -415,3 +415,15 @@ def test_aircap_whole_body_flips_relabelled_in_a_minority_of_views(aircap_flips)
     assert ra["minority"] < 1.05 * ra["none"]
     with pytest.raises(MocapgraphError, match="uav_body_swaps"):
         OnlineFusion(static_rig(capture), OnlineOptions(uav_body_swaps="all"))
+
+
+def test_stats_report_wall_clock_and_cpu_time(rich_run):
+    """updates/s on both clocks: the updates over the time spent inside ``update()`` after the
+    bootstrap, wall clock and this thread's CPU time (which cannot exceed the wall clock)."""
+    stats = rich_run.stats
+    s = stats.summary()
+    assert s["updates"] == len(stats.latencies) == len(stats.cpu_latencies) > 0
+    assert sum(stats.cpu_latencies) <= stats.busy_cpu_seconds <= stats.busy_seconds + 1e-3
+    assert s["updates_per_cpu_s"] == pytest.approx(s["updates"] / stats.busy_cpu_seconds, abs=0.05)
+    assert s["updates_per_cpu_s"] >= s["updates_per_s"] - 0.1
+    assert all(c <= w + 1e-3 for c, w in zip(stats.cpu_latencies, stats.latencies))

@@ -274,7 +274,8 @@ class OnlineStats:
     body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many views of their update took one as not (uav_body_swaps)
     bootstrap_seconds: float = 0.0
     bootstrap_observations: int = 0
-    busy_seconds: float = 0.0  # inside update() after the bootstrap
+    busy_seconds: float = 0.0  # inside update() after the bootstrap, wall clock
+    busy_cpu_seconds: float = 0.0  # the same calls' CPU time (this thread): what the loop costs, other jobs on the machine aside
     latencies: list[float] = field(default_factory=list)  # of the update() calls that ran a smoother update
     cpu_latencies: list[float] = field(default_factory=list)  # the same calls' CPU time (this thread): other jobs on the machine aside
     solve_seconds: list[float] = field(default_factory=list)  # of the smoother updates alone
@@ -297,6 +298,7 @@ class OnlineStats:
             "latency_cpu_ms": {q: round(float(np.percentile(cpu, p)), 2) if len(cpu) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "solve_ms_p95": round(float(np.percentile(self.solve_seconds, 95)) * 1e3, 2) if self.solve_seconds else None, "batch_steps": self.batches,
             "updates_per_s": round(len(lat) / self.busy_seconds, 1) if len(lat) else None,
+            "updates_per_cpu_s": round(len(lat) / self.busy_cpu_seconds, 1) if len(lat) and self.busy_cpu_seconds else None,
             "observations_per_s": round((self.observations - self.bootstrap_observations) / self.busy_seconds, 1) if self.busy_seconds else None,
         }  # fmt: skip
 
@@ -527,11 +529,12 @@ class OnlineFusion:
             return self.state()
         updated = self._observe(c, frame)
         out = self.state(updated=updated)
-        seconds = time.perf_counter() - start
+        seconds, cpu = time.perf_counter() - start, time.thread_time() - cpu_start
         self.stats.busy_seconds += seconds
+        self.stats.busy_cpu_seconds += cpu
         if updated:
             self.stats.latencies.append(seconds)
-            self.stats.cpu_latencies.append(time.thread_time() - cpu_start)
+            self.stats.cpu_latencies.append(cpu)
         return out
 
     def _take_sensors(self, c: int, sensors: dict) -> dict:
@@ -1271,7 +1274,8 @@ def summary(run: OnlineRun) -> str:
     return (
         f"online ({run.smoothed.parameters['rig']}): {len(run.smoothed.timestamps)} body states in {run.seconds:.1f} s "
         f"(bootstrap {s['bootstrap_s']:.1f} s); {s['updates']} updates, {s['updates_per_s']} updates/s, latency p50 {lat['p50']} ms, "
-        f"p95 {lat['p95']} ms, max {lat['max']} ms\n"
+        f"p95 {lat['p95']} ms, max {lat['max']} ms (wall clock); CPU {s['updates_per_cpu_s']} updates/s, p50 {s['latency_cpu_ms']['p50']} ms, "
+        f"p95 {s['latency_cpu_ms']['p95']} ms\n"
         f"  observations {s['observations']}: used {s['used']} (late {s['late_used']}), dropped late {s['late_dropped']}, "
         f"gated {s['gated']}, unplaced {s['unplaced']}, empty {s['empty']}; relabelled {s['relabelled']}"
     ) + "".join(
