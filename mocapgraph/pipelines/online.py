@@ -19,7 +19,10 @@ weak pose regulariser, and camera variables:
   through :func:`~mocapgraph.graphs.navigation.online_track`), or its GPS/IMU fusion run on the
   samples received so far (:class:`~mocapgraph.graphs.navigation.IncrementalNavigation`); a GPS
   outage leaves that fusion coasting on the IMU (flag ``camera_prior_coasting``). A static camera
-  with a calibration is held at it.
+  with a calibration is held at it. A UAV detection may relabel its whole body (its detector's
+  front/back flip) only in a minority of its update's views (``uav_body_swaps``), and the joints the
+  pose GMM leaves out (spine3, collars, feet) are held at 0.2 rad (``unmodelled_sigma_rad``): else a
+  flip was explained by turning the upper body round on them.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable kept in the window (under a
   prior at the bootstrap's estimate: the body states leaving the window leave their information on
   it) for ``static_refine_s``, then held at its estimate; a
