@@ -1,7 +1,11 @@
 """``mocapgraph bench online``: the online loop on an ``aircap`` (3 UAVs) and a ``rich`` capture, one run.
 
 Per capture: updates/s (smoother updates per second spent inside ``update()`` after the
-bootstrap), latency p50/p95/max of the ``update()`` calls that ran a smoother update, resident
+bootstrap), latency p50/p95/max of the ``update()`` calls that ran a smoother update, each on the
+wall clock (what a caller waits, other jobs on the machine included) and in CPU time of the
+loop's thread (``updates_per_cpu_s``, ``latency_cpu_ms``: what the loop costs); issue 15's goals
+(>= 60 updates/s, p95 <= 25 ms) are checked on both (``goals``), with the machine's load average
+over the run beside them (``load_1min``: on a shared machine the wall clock moves with it), resident
 memory at the start and the end of the stream, MPJPE / RA-MPJPE / MCPE of the filtered and of
 the smoothed trajectory and of the offline pipeline on the same capture (its default options).
 On ``aircap`` also the loop with its UAV cameras on the GPS/IMU fusion run incrementally
@@ -17,6 +21,7 @@ the first's (issue 15: memory within 5 %, p95 within 10 %).
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import replace
 
@@ -27,6 +32,7 @@ from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.graphs.fixed_lag import Relinearisation
 from mocapgraph.pipelines.online import OnlineFusion, OnlineOptions, run_online, static_rig, stream
 
+GOAL_UPDATES_PER_S, GOAL_P95_MS = 60.0, 25.0  # issue 15, on this 2-core machine
 REPORTED = ("mpjpe_m", "ra_mpjpe_m", "mcpe_m", "static_mcpe_m", "moving_mcpe_m")
 POLICIES = {
     "off": Relinearisation(enabled=False),
@@ -39,8 +45,6 @@ POLICIES = {
 def _resident_mb() -> float:
     with open("/proc/self/statm") as f:
         pages = int(f.read().split()[1])
-    import os
-
     return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
@@ -56,11 +60,17 @@ def _online(capture, options: OnlineOptions) -> dict:
         if fusion.stats.latencies and "start_mb" not in memory:
             memory["start_mb"] = round(_resident_mb(), 1)
 
+    load = os.getloadavg()[0]
     run = run_online(capture, options, on_update=watch)
     s = run.stats.summary()
+    goals = {
+        clock: {"updates_per_s": rate is not None and rate >= GOAL_UPDATES_PER_S, "p95_ms": lat["p95"] is not None and lat["p95"] <= GOAL_P95_MS}
+        for clock, rate, lat in (("wall", s["updates_per_s"], s["latency_ms"]), ("cpu", s["updates_per_cpu_s"], s["latency_cpu_ms"]))
+    }
     return {
         "updates_per_s": s["updates_per_s"], "latency_ms": s["latency_ms"], "observations_per_s": s["observations_per_s"],
-        "latency_cpu_ms": s["latency_cpu_ms"], "bootstrap_s": s["bootstrap_s"], "solver_resets": s["solver_resets"], "solve_ms_p95": s["solve_ms_p95"], "batch_steps": s["batch_steps"], "updates": s["updates"], "dropped": run.stats.dropped, "late_dropped": s["late_dropped"], "gated": s["gated"],
+        "updates_per_cpu_s": s["updates_per_cpu_s"], "latency_cpu_ms": s["latency_cpu_ms"], "goals": goals,
+        "load_1min": {"start": round(load, 2), "end": round(os.getloadavg()[0], 2)}, "cpu_count": os.cpu_count(), "bootstrap_s": s["bootstrap_s"], "solver_resets": s["solver_resets"], "solve_ms_p95": s["solve_ms_p95"], "batch_steps": s["batch_steps"], "updates": s["updates"], "dropped": run.stats.dropped, "late_dropped": s["late_dropped"], "gated": s["gated"],
         "resident_mb": {**memory, "end_mb": round(_resident_mb(), 1)},
         "filtered": _metrics(run.filtered, capture), "smoothed": _metrics(run.smoothed, capture),
     }  # fmt: skip
@@ -110,7 +120,7 @@ def bench_online(duration_s: float = 20.0, seed: int = 0, lag_s: float = 1.0, lo
         entry = _online(capture, OnlineOptions(lag_s=lag_s))
         if preset == "aircap":
             fused = _online(capture, OnlineOptions(lag_s=lag_s, camera_priors="fused"))
-            entry["camera_priors_fused"] = {k: fused[k] for k in ("updates_per_s", "latency_ms", "latency_cpu_ms", "gated", "filtered", "smoothed")}
+            entry["camera_priors_fused"] = {k: fused[k] for k in ("updates_per_s", "updates_per_cpu_s", "latency_ms", "latency_cpu_ms", "gated", "filtered", "smoothed")}
         start = time.perf_counter()
         entry["offline"] = _metrics(offline(capture), capture)
         entry["offline_seconds"] = round(time.perf_counter() - start, 1)
@@ -120,5 +130,5 @@ def bench_online(duration_s: float = 20.0, seed: int = 0, lag_s: float = 1.0, lo
         out[f"relinearisation_{preset}"] = {}
         for name, policy in POLICIES.items():
             r = _online(capture, replace(OnlineOptions(lag_s=lag_s), relinearisation=policy))
-            out[f"relinearisation_{preset}"][name] = {k: r[k] for k in ("updates_per_s", "latency_ms", "latency_cpu_ms", "batch_steps", "updates", "filtered", "smoothed")}
+            out[f"relinearisation_{preset}"][name] = {k: r[k] for k in ("updates_per_s", "updates_per_cpu_s", "latency_ms", "latency_cpu_ms", "batch_steps", "updates", "filtered", "smoothed")}
     return out

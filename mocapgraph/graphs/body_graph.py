@@ -74,6 +74,11 @@ class GraphOptions:
     noise_px: float = 3.0
     gm_sigma_px: float = 40.0
     pose_prior_sigma_rad: float = 0.8  # the weak regulariser every state keeps, on all 21 joints
+    # The regulariser's width on the joints the pose GMM leaves out (its training takes never move
+    # them: spine3, the feet, the collars on CMU); None: pose_prior_sigma_rad. At 0.8 rad only it held
+    # them, and the online loop's single Gauss-Newton steps turned the upper body round on spine3 and
+    # the collars to explain a UAV's whole-body detector flips (docs/online.md).
+    unmodelled_sigma_rad: float | None = None
     # The learned pose prior: the pelvis's pitch is nearly invisible in keypoints (the hip points
     # lie on its pitch axis), and without a prior the spine and legs make up for it. "vae" runs
     # its network once per linearisation for all states.
@@ -152,7 +157,7 @@ class GraphOptions:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
-        for name in ("joint_sigma_m_s", "camera_sigma_m_s2"):
+        for name in ("joint_sigma_m_s", "camera_sigma_m_s2", "unmodelled_sigma_rad"):
             value = getattr(self, name)
             if value is not None and not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise MocapgraphError(f"{name}: a finite number > 0 or None, got {value!r}")
@@ -177,6 +182,17 @@ class LearnedPriors:
             load_default_pose_vae() if pose_prior == "vae" else None,
             load_default_motion_vae() if motion_prior == "vae" else None,
         )
+
+
+def regularizer_sigmas(options: GraphOptions, pose_gmm) -> float | np.ndarray:
+    """The weak pose regulariser's standard deviations, radians: ``pose_prior_sigma_rad``, or
+    ``(63,)`` with ``unmodelled_sigma_rad`` on the joints ``pose_gmm`` does not model (when both
+    are given and the mixture covers some joints only)."""
+    if options.unmodelled_sigma_rad is None or pose_gmm is None or pose_gmm.joints is None:
+        return options.pose_prior_sigma_rad
+    sigmas = np.full((NUM_JOINTS - 1, 3), float(options.unmodelled_sigma_rad))
+    sigmas[np.asarray(pose_gmm.joints)] = options.pose_prior_sigma_rad
+    return sigmas.ravel()
 
 
 def motion_windows(n: int, stride: int = WINDOW) -> list[int]:
@@ -445,7 +461,7 @@ class BodyGraph:
     def add_pose_priors(self, graph: gtsam.NonlinearFactorGraph, i: int) -> None:
         """The weak regulariser on every joint of state ``i`` and the pose GMM, if loaded (the
         pose VAE covers all states at once: :meth:`add_pose_vae`)."""
-        graph.add(pose_regularizer_factor(pose_key(i), self.options.pose_prior_sigma_rad))
+        graph.add(pose_regularizer_factor(pose_key(i), regularizer_sigmas(self.options, self.learned.pose_gmm)))
         if self.learned.pose_gmm is not None:
             from mocapgraph.priors import pose_gmm_factor
 

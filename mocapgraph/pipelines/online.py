@@ -19,7 +19,10 @@ weak pose regulariser, and camera variables:
   through :func:`~mocapgraph.graphs.navigation.online_track`), or its GPS/IMU fusion run on the
   samples received so far (:class:`~mocapgraph.graphs.navigation.IncrementalNavigation`); a GPS
   outage leaves that fusion coasting on the IMU (flag ``camera_prior_coasting``). A static camera
-  with a calibration is held at it.
+  with a calibration is held at it. A UAV detection may relabel its whole body (its detector's
+  front/back flip) only in a minority of its update's views (``uav_body_swaps``), and the joints the
+  pose GMM leaves out (spine3, collars, feet) are held at 0.2 rad (``unmodelled_sigma_rad``): else a
+  flip was explained by turning the upper body round on them.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable kept in the window (under a
   prior at the bootstrap's estimate: the body states leaving the window leave their information on
   it) for ``static_refine_s``, then held at its estimate; a
@@ -63,6 +66,7 @@ pose its frames were explained with). ``docs/online.md`` has the numbers.
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import time
@@ -88,7 +92,7 @@ from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key
 from mocapgraph.factors.reprojection import Labelling, ShapeTableCache, reprojection_factor
 from mocapgraph.factors.robust import RobustScale
 from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smoothness_factor, pose_smoothness_factor, pose_velocity_factor, root_smoothness_factor, rotation_acceleration_factor
-from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, swap_hypotheses
+from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, regularizer_sigmas, swap_hypotheses
 from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation, UpdateReport
 from mocapgraph.graphs.initialisation import resect
 from mocapgraph.graphs.keypoint_fit import offsets_from_table
@@ -179,6 +183,22 @@ class OnlineOptions:
     # stream (smoothed RA-MPJPE 51.4 mm; 38.4 at 80 rad/s^2, MPJPE 21.8 -> 23.1 mm; seeds 1, 2
     # within 0.2 mm either way; docs/online.md, "The root's pitch and the shape in the window")
     hips_sigma_rad_s2: float | None = 80.0
+    # The pose regulariser's width on the joints the pose GMM does not model (spine3, collars,
+    # feet; graph.unmodelled_sigma_rad), in the loop and in the bootstrap's batch solve; "rig": 0.2
+    # rad on AirCap rigs, off (0.8 rad, as every joint) on uncalibrated ones. With only 0.8 rad there,
+    # a UAV's whole-body detector flip (not relabelled on UAVs, above) was explained by turning the
+    # upper body round on spine3 (up to 2.4 rad) and then the collars (3.4 rad), kept for a second
+    # by the arms' relabellings it drew (aircap 10 s, smoothed RA-MPJPE seed 0 0.097 -> 0.080 m,
+    # seed 1 0.080 -> 0.066 m; 0.1 rad: 0.088 m on seed 0; docs/online.md).
+    unmodelled_sigma_rad: float | None | str = "rig"
+    # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
+    # only while fewer of an update's detections take it than keep their body as detected (decided
+    # at the new states' prediction: when most views see the body flipped, the prediction is
+    # turned round, not their detectors); "none": never (as graph.moving_body_swaps=False).
+    # Always allowed, a body once turned round stayed so (aircap 10 s: 216 of 267 relabellings not
+    # in the truth); never allowed, a flip in one view of three was explained by twisting the body
+    # (docs/online.md).
+    uav_body_swaps: str = "minority"
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
     gate_reacquire: int = 10
@@ -242,6 +262,8 @@ class OnlineOptions:
             raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
+        if self.uav_body_swaps not in ("minority", "none"):
+            raise MocapgraphError(f"uav_body_swaps {self.uav_body_swaps!r}: choose minority or none")
         if self.camera_priors not in PRIOR_SOURCES:
             raise MocapgraphError(f"camera_priors {self.camera_priors!r}: choose one of {', '.join(PRIOR_SOURCES)}")
         self.navigation.check()
@@ -255,10 +277,10 @@ class OnlineOptions:
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
         if self.lag_s * self.rate_hz < 2:
             raise MocapgraphError(f"lag_s: the window must hold at least 2 states at {self.rate_hz} Hz, got {self.lag_s} s")
-        for name in ("root_sigma_m_s2", "pose_sigma_rad_s2", "root_sigma_rad_s2", "hips_sigma_rad_s2"):
+        for name in ("root_sigma_m_s2", "pose_sigma_rad_s2", "root_sigma_rad_s2", "hips_sigma_rad_s2", "unmodelled_sigma_rad"):
             value = getattr(self, name)
-            if value is not None and not (value == "rig" and name == "pose_sigma_rad_s2") and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2: or 'rig'), got {value!r}")
+            if value is not None and not (value == "rig" and name in ("pose_sigma_rad_s2", "unmodelled_sigma_rad")) and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2, unmodelled_sigma_rad: or 'rig'), got {value!r}")
         for name in ("gate_min_keypoints", "gate_reacquire", "join_frames", "bootstrap_offset_rounds"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise MocapgraphError(f"{name}: a whole number >= 1, got {getattr(self, name)!r}")
@@ -283,9 +305,11 @@ class OnlineStats:
     camera_priors: dict[str, dict[str, int]] = field(default_factory=dict)  # camera → {"fused" | "self_pose": frames}
     solver_resets: int = 0  # smoother updates that threw; the window restarted from the tracker's prediction
     relabelled: int = 0
+    body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many views of their update took one as not (uav_body_swaps)
     bootstrap_seconds: float = 0.0
     bootstrap_observations: int = 0
-    busy_seconds: float = 0.0  # inside update() after the bootstrap
+    busy_seconds: float = 0.0  # inside update() after the bootstrap, wall clock
+    busy_cpu_seconds: float = 0.0  # the same calls' CPU time (this thread): what the loop costs, other jobs on the machine aside
     latencies: list[float] = field(default_factory=list)  # of the update() calls that ran a smoother update
     cpu_latencies: list[float] = field(default_factory=list)  # the same calls' CPU time (this thread): other jobs on the machine aside
     solve_seconds: list[float] = field(default_factory=list)  # of the smoother updates alone
@@ -303,11 +327,12 @@ class OnlineStats:
         return {
             "observations": self.observations, "used": self.used, "late_used": self.late_used, "late_dropped": self.late_dropped,
             "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
-            "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
+            "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "latency_cpu_ms": {q: round(float(np.percentile(cpu, p)), 2) if len(cpu) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "solve_ms_p95": round(float(np.percentile(self.solve_seconds, 95)) * 1e3, 2) if self.solve_seconds else None, "batch_steps": self.batches,
             "updates_per_s": round(len(lat) / self.busy_seconds, 1) if len(lat) else None,
+            "updates_per_cpu_s": round(len(lat) / self.busy_cpu_seconds, 1) if len(lat) and self.busy_cpu_seconds else None,
             "observations_per_s": round((self.observations - self.bootstrap_observations) / self.busy_seconds, 1) if self.busy_seconds else None,
         }  # fmt: skip
 
@@ -426,6 +451,8 @@ class OnlineFusion:
             if options.hips_sigma_rad_s2 is not None:
                 sigmas[[JOINT_NAMES.index("left_hip") - 1, JOINT_NAMES.index("right_hip") - 1]] = options.hips_sigma_rad_s2
             self._pose_sigma_rad_s2 = sigmas.ravel()
+        unmodelled = options.unmodelled_sigma_rad
+        self._graph = replace(options.graph, unmodelled_sigma_rad=(0.2 if self.kind == "aircap" else None) if unmodelled == "rig" else unmodelled)
         self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
         self.body = load_body_model()
         self.record = record
@@ -439,7 +466,9 @@ class OnlineFusion:
         self.world_frame = "capture" if self.kind == "aircap" else "ground_plane"
         self.smoother = self._new_smoother()
         self._pose_gmm = LearnedPriors.load(options.graph.pose_prior).pose_gmm
+        self._regularizer_sigmas = regularizer_sigmas(self._graph, self._pose_gmm)
         self._caches: dict[str, ShapeTableCache] = {}
+        self._hypotheses: dict[str, np.ndarray] = {}  # by keypoint format, its (H, K) labelling hypotheses
         self._keypoint_offsets: dict[str, np.ndarray] = {}  # by detector format, (K, 3): the bootstrap's
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
         self._buffer: list[StreamFrame] = []
@@ -470,6 +499,7 @@ class OnlineFusion:
         # per-state flags of what the loop could not determine (results' flags)
         self._flagged: dict[str, set[int]] = {"no_camera_prior": set(), "camera_prior_coasting": set(), "solver_reset": set()}
         self._pending = gtsam.NonlinearFactorGraph()
+        self._body_votes: list[tuple[Labelling, gtsam.NonlinearFactor]] = []  # UAV detections of the update that may relabel their whole body
         self._pending_values = gtsam.Values()
         self._pending_stamps: dict[int, float] = {}
         self._counts: dict[int, int] = {}
@@ -541,11 +571,12 @@ class OnlineFusion:
             return self.state()
         updated = self._observe(c, frame)
         out = self.state(updated=updated)
-        seconds = time.perf_counter() - start
+        seconds, cpu = time.perf_counter() - start, time.thread_time() - cpu_start
         self.stats.busy_seconds += seconds
+        self.stats.busy_cpu_seconds += cpu
         if updated:
             self.stats.latencies.append(seconds)
-            self.stats.cpu_latencies.append(time.thread_time() - cpu_start)
+            self.stats.cpu_latencies.append(cpu)
         return out
 
     def _take_sensors(self, c: int, sensors: dict) -> dict:
@@ -618,7 +649,7 @@ class OnlineFusion:
             fused = self._navigation and o.camera_priors == "fused" and all(c in self._navigation for c, cam in enumerate(self.rig.cameras) if cam.mount is not None)
             options = AircapOptions(
                 mode="sequence", cameras="fixed", prior_source="fused" if fused else "online", sync="grid", grid_hz=o.rate_hz, detectors=detectors,
-                covariances=False, workers=1, graph=replace(o.graph, focal="fixed", shape="estimate"), motion_prior=o.bootstrap_motion_prior if o.rate_hz == 30.0 else "none",
+                covariances=False, workers=1, graph=replace(self._graph, focal="fixed", shape="estimate"), motion_prior=o.bootstrap_motion_prior if o.rate_hz == 30.0 else "none",
             )  # fmt: skip
             result = run_aircap(mini, options)
         else:
@@ -789,9 +820,9 @@ class OnlineFusion:
         samples = self._self_pose[c]
         if cam.mount is None or not samples:
             return None
-        times = np.fromiter((s[0] for s in samples), float, len(samples))
-        k = int(np.searchsorted(times, t))
-        if min(abs(t - times[max(k - 1, 0)]), abs(times[min(k, len(times) - 1)] - t)) > self.options.prior_timeout_s:
+        # (t,) sorts before a sample at t: the samples' times, searched without building an array of them
+        k = bisect.bisect_left(samples, (t,))
+        if min(abs(t - samples[max(k - 1, 0)][0]), abs(samples[min(k, len(samples) - 1)][0] - t)) > self.options.prior_timeout_s:
             return None  # an outage: holding the last sample would hold a moving camera still
         near = [samples[j] for j in range(max(k - 2, 0), min(k + 2, len(samples)))]  # the neighbours online_track interpolates
         log_ = {"self_pose": {"t": np.array([s[0] for s in near]), "rotation": np.array([s[1] for s in near]), "position": np.array([s[2] for s in near])}}
@@ -985,17 +1016,21 @@ class OnlineFusion:
             # previous frame, which its variable starts at and is tied to: the hypotheses are
             # decided there. Without it the handheld camera of rich went round the person for
             # each of its detector's whole-body flips (3 m off for 0.7 s, 10 s capture).
-            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap") or (self.kind == "smartmocap" and view.tied)
-            labelling = Labelling(swap_hypotheses(self.body, fmt), 0.5 * o.swap_cost_sigmas**2, allowed=allowed)
+            voted = self.kind == "aircap" and cam.moving and self.options.uav_body_swaps == "minority"
+            allowed[0, SWAP_KINDS.index("body")] = not cam.moving or (o.moving_body_swaps and self.kind == "aircap") or (self.kind == "smartmocap" and view.tied) or voted
+            if fmt not in self._hypotheses:
+                self._hypotheses[fmt] = swap_hypotheses(self.body, fmt)
+            labelling = Labelling(self._hypotheses[fmt], 0.5 * o.swap_cost_sigmas**2, allowed=allowed)
             view.labellings.append(labelling)
         between = {"next_state": (root_key(i + 1), pose_key(i + 1)), "fraction": a} if a else {}
-        self._pending.add(
-            reprojection_factor(
-                self.body, self._cache(fmt), root_key(i), pose_key(i), self._shape_key, [view.key], [None if view.key is not None else view.pose],
-                np.array([[cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]]]), pixels[None], weights[None], fmt, self.scale,
-                noise_px=o.noise_px, fixed_shape=None if self._shape_key is not None else self.shape, labelling=labelling, **between,
-            )  # fmt: skip
-        )
+        factor = reprojection_factor(
+            self.body, self._cache(fmt), root_key(i), pose_key(i), self._shape_key, [view.key], [None if view.key is not None else view.pose],
+            np.array([[cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]]]), pixels[None], weights[None], fmt, self.scale,
+            noise_px=o.noise_px, fixed_shape=None if self._shape_key is not None else self.shape, labelling=labelling, **between,
+        )  # fmt: skip
+        self._pending.add(factor)
+        if labelling is not None and labelling.allowed[0, SWAP_KINDS.index("body")] and voted:
+            self._body_votes.append((labelling, factor))
         self.stats.used += 1
         self._last_observed = max(self._last_observed, i + (1 if a else 0))
         if self.record:
@@ -1021,7 +1056,7 @@ class OnlineFusion:
             self._pending_values.insert(pose_key(k), pose.ravel())
             t = self.t0 + k * self.period
             self._pending_stamps[root_key(k)] = self._pending_stamps[pose_key(k)] = t
-            self._pending.add(pose_regularizer_factor(pose_key(k), o.graph.pose_prior_sigma_rad))
+            self._pending.add(pose_regularizer_factor(pose_key(k), self._regularizer_sigmas))
             if self._pose_gmm is not None:
                 self._pending.add(pose_gmm_factor(pose_key(k), self._pose_gmm))
             if k == 0 and self._gauge is not None:
@@ -1045,6 +1080,7 @@ class OnlineFusion:
         self._hold_refined(self.t0 + end * self.period)
         keep = [*self._static_keys.values(), *self._offsets, *([self._shape_key] if self._shape_key is not None else [])]
         keep = [k for k in keep if self.smoother.holds(k) or self._pending_values.exists(k)]
+        self._vote_body_swaps()
         try:
             report = self.smoother.update(self._pending, self._pending_values, self._pending_stamps, keep=keep)
         except RuntimeError as error:  # GTSAM's exceptions (an indeterminant system, ...) come as RuntimeError
@@ -1095,6 +1131,25 @@ class OnlineFusion:
         estimate = np.clip(estimate, lo, hi)
         if exact or np.abs(estimate - self.shape).max() > _SHAPE_STEP:
             self.shape = estimate
+
+    def _vote_body_swaps(self) -> None:
+        """``uav_body_swaps="minority"``: the update's UAV detections' labellings at the new
+        states' prediction; when as many relabel their whole body as keep it, none may (the
+        prediction is what is turned round)."""
+        votes, self._body_votes = self._body_votes, []
+        if not votes:
+            return
+        values = gtsam.Values(self.smoother.estimate)
+        values.insert(self._pending_values)
+        body = SWAP_KINDS.index("body")
+        flipped = 0
+        for labelling, factor in votes:
+            factor.error(values)  # sets labelling.choice at these values
+            flipped += int(labelling.choice[0] == body)
+        if flipped and 2 * flipped >= len(votes):
+            for labelling, _ in votes:
+                labelling.allowed[0, body] = False
+            self.stats.body_swaps_refused += flipped
 
     def _hold_refined(self, now: float) -> None:
         """The static cameras refined for ``static_refine_s`` and the shape refined for
@@ -1315,7 +1370,8 @@ def summary(run: OnlineRun) -> str:
     return (
         f"online ({run.smoothed.parameters['rig']}): {len(run.smoothed.timestamps)} body states in {run.seconds:.1f} s "
         f"(bootstrap {s['bootstrap_s']:.1f} s); {s['updates']} updates, {s['updates_per_s']} updates/s, latency p50 {lat['p50']} ms, "
-        f"p95 {lat['p95']} ms, max {lat['max']} ms\n"
+        f"p95 {lat['p95']} ms, max {lat['max']} ms (wall clock); CPU {s['updates_per_cpu_s']} updates/s, p50 {s['latency_cpu_ms']['p50']} ms, "
+        f"p95 {s['latency_cpu_ms']['p95']} ms\n"
         f"  observations {s['observations']}: used {s['used']} (late {s['late_used']}), dropped late {s['late_dropped']}, "
         f"gated {s['gated']}, unplaced {s['unplaced']}, empty {s['empty']}; relabelled {s['relabelled']}"
     ) + "".join(
