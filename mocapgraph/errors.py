@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
 class MocapgraphError(Exception):
     """A problem with the user's input or environment, worded for the user (no traceback needed)."""
+
+
+def is_positive_number(value) -> bool:
+    """Whether an option's ``value`` is a finite int or float above zero (the options classes'
+    common check; each raises its own message naming the field)."""
+    return isinstance(value, (int, float)) and math.isfinite(value) and value > 0
 
 
 def as_checked_array(

@@ -41,7 +41,7 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body.rotations import matrix_to_rotvec, nearest_rotation, rotvec_to_matrix, skew
-from mocapgraph.errors import MocapgraphError, as_checked_array
+from mocapgraph.errors import MocapgraphError, as_checked_array, is_positive_number
 from mocapgraph.factors.keys import drift_key, nav_keys
 from mocapgraph.factors.navigation import (
     GRAVITY_M_S2,
@@ -706,7 +706,7 @@ class IncrementalOptions:
     def check(self) -> None:
         for name in ("nav_rate_hz", "lag_s", "bootstrap_s", "align_s", "gps_timeout_s", "max_extrapolation_s"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if not is_positive_number(value):
                 raise MocapgraphError(f"navigation.{name}: a finite number > 0, got {value!r}")
         if self.lag_s * self.nav_rate_hz < 2:
             raise MocapgraphError(f"navigation.lag_s: the window must hold at least 2 states at {self.nav_rate_hz} Hz, got {self.lag_s} s")

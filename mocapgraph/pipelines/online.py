@@ -85,7 +85,7 @@ from mocapgraph.data_tools.geometry.camera_model import project_points
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.data_tools.io.capture import Camera, Capture, Detector
 from mocapgraph.data_tools.io.result import CameraTrack, Result, options_parameters
-from mocapgraph.errors import MocapgraphError
+from mocapgraph.errors import MocapgraphError, is_positive_number
 from mocapgraph.factors.body_priors import pose_regularizer_factor
 from mocapgraph.factors.camera_priors import camera_offset_prior_factor, camera_prior_factor
 from mocapgraph.factors.keys import CAMERA_STRIDE, camera_key, camera_offset_key, pose_key, root_key, shape_key
@@ -258,7 +258,7 @@ class OnlineOptions:
         if self.static_cameras not in ("hold", "refine"):
             raise MocapgraphError(f"static_cameras {self.static_cameras!r}: choose hold or refine")
         sigmas = self.static_camera_sigmas
-        if not (isinstance(sigmas, (tuple, list)) and len(sigmas) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in sigmas)):
+        if not (isinstance(sigmas, (tuple, list)) and len(sigmas) == 2 and all(map(is_positive_number, sigmas))):
             raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
@@ -269,17 +269,17 @@ class OnlineOptions:
         self.navigation.check()
         for name in ("static_refine_s", "shape_refine_s"):
             value = getattr(self, name)
-            if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if value is not None and not is_positive_number(value):
                 raise MocapgraphError(f"{name}: a finite number of seconds > 0 or None, got {value!r}")
         for name in ("lag_s", "rate_hz", "bootstrap_s", "gate_margin", "coast_s", "prior_timeout_s"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if not is_positive_number(value):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
         if self.lag_s * self.rate_hz < 2:
             raise MocapgraphError(f"lag_s: the window must hold at least 2 states at {self.rate_hz} Hz, got {self.lag_s} s")
         for name in ("root_sigma_m_s2", "pose_sigma_rad_s2", "root_sigma_rad_s2", "hips_sigma_rad_s2", "unmodelled_sigma_rad"):
             value = getattr(self, name)
-            if value is not None and not (value == "rig" and name in ("pose_sigma_rad_s2", "unmodelled_sigma_rad")) and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if value is not None and not (value == "rig" and name in ("pose_sigma_rad_s2", "unmodelled_sigma_rad")) and not is_positive_number(value):
                 raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2, unmodelled_sigma_rad: or 'rig'), got {value!r}")
         for name in ("gate_min_keypoints", "gate_reacquire", "join_frames", "bootstrap_offset_rounds"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
