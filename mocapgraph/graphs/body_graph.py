@@ -26,7 +26,7 @@ from mocapgraph.body.keypoint_offsets import offset_basis, offset_parameters
 from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
-from mocapgraph.errors import MocapgraphError
+from mocapgraph.errors import MocapgraphError, is_positive_number
 from mocapgraph.factors.body_priors import pose_regularizer_factor, shape_prior_factor
 from mocapgraph.factors.camera_priors import camera_gyro_factor
 from mocapgraph.factors.ground import camera_ground_factor, joint_ground_factor
@@ -155,11 +155,11 @@ class GraphOptions:
                      "pose_sigma_rad_s", "pose_sigma_rad_s2", "camera_sigma_rad_s", "camera_sigma_m_s", "ground_sigma_m",
                      "swap_cost_sigmas", "focal_sigma_log", "offset_sigma_m"):  # fmt: skip
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+            if not is_positive_number(value):
                 raise MocapgraphError(f"{name}: a finite number > 0, got {value!r}")
         for name in ("joint_sigma_m_s", "camera_sigma_m_s2", "unmodelled_sigma_rad"):
             value = getattr(self, name)
-            if value is not None and not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+            if value is not None and not is_positive_number(value):
                 raise MocapgraphError(f"{name}: a finite number > 0 or None, got {value!r}")
 
 

@@ -54,7 +54,7 @@ from mocapgraph.data_tools.geometry.epipolar import (
 from mocapgraph.data_tools.geometry.triangulation import DEFAULT_THRESHOLD_PX
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import CameraTrack, Result, options_parameters
-from mocapgraph.errors import MocapgraphError
+from mocapgraph.errors import MocapgraphError, is_positive_number
 from mocapgraph.graphs.point_bundle import MIN_CONFIDENCE, bundle_adjust, reprojection_errors, triangulate_placed
 from mocapgraph.pipelines.observations import capture_state_model, detector_names
 from mocapgraph.pipelines.results import swap_notes
@@ -95,7 +95,7 @@ class UncalibratedOptions:
     def check(self) -> None:
         for name in ("height_m", "gm_sigma_px"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+            if not is_positive_number(value):
                 raise MocapgraphError(f"{name}: must be a positive number, got {value!r}")
         if not (isinstance(self.min_confidence, (int, float)) and 0 <= self.min_confidence < 1):
             raise MocapgraphError(f"min_confidence: must lie in [0, 1), got {self.min_confidence!r}")
