@@ -34,14 +34,19 @@ def scene():
     return synthesize("rich", seed=3, duration_s=0.5), load_body_model()
 
 
-def projected(scene, camera: str, fmt: str) -> np.ndarray:
+def projected(scene, camera: str, fmt: str, other: bool = False) -> np.ndarray:
     """``(T, K, 3)`` the ground-truth body's points of format ``fmt`` in ``camera``: pixels
-    (OpenCV projection with the lens distortion) and a confidence in (0.3, 1)."""
+    (OpenCV projection with the lens distortion) and a confidence in (0.3, 1). ``other``: a second
+    person instead: the same body scaled by 0.7 about the world origin (a child's size, its feet
+    still on the ground), set 1.2 m aside and moving backwards in time (a motion of its own, which
+    epipolar geometry can tell apart from the first person's)."""
     capture, body = scene
     cam = next(c for c in capture.cameras if c.name == camera)
     gt = capture.ground_truth
     rows = np.searchsorted(gt.timestamps, cam.timestamps)
     points = body.forward(gt.shape, gt.root[rows], gt.pose[rows], keypoints=fmt).keypoints
+    if other:
+        points = 0.7 * points[::-1] + np.array([1.2, -0.6, 0.0])
     camera_T_world = np.linalg.inv(cam.extrinsics[0])
     rvec, tvec = cv2.Rodrigues(camera_T_world[:3, :3])[0], camera_T_world[:3, 3]
     uv = cv2.projectPoints(points.reshape(-1, 3), rvec, tvec, cam.K, cam.distortion)[0].reshape(len(rows), -1, 2)
@@ -49,9 +54,11 @@ def projected(scene, camera: str, fmt: str) -> np.ndarray:
     return np.concatenate([uv, conf[..., None]], axis=-1)
 
 
-def write_people(folder, stem: str, frames: np.ndarray, distractor: bool = True, missing=((1, 2),)) -> None:
-    """One JSON file per frame in Pose2Sim's naming, with a smaller second person first in the list
-    (so that ``largest`` must choose) and a few points at confidence 0 (missing)."""
+def write_people(folder, stem: str, frames: np.ndarray, distractor=True, missing=((1, 2),)) -> None:
+    """One JSON file per frame in Pose2Sim's naming, with a second person first in the list (so
+    that ``largest`` must choose) and a few points at confidence 0 (missing). ``distractor``: True
+    for a copy of ``frames`` shrunk in the image (a per-frame choice tells it by size alone), the
+    second person's own ``(T, K, 3)`` pixels, or False for none."""
     folder.mkdir(parents=True, exist_ok=True)
     for t, kp in enumerate(frames):
         kp = kp.copy()
@@ -59,10 +66,12 @@ def write_people(folder, stem: str, frames: np.ndarray, distractor: bool = True,
             if frame == t:
                 kp[point] = 0.0
         people = [kp]
-        if distractor:
+        if distractor is True:
             small = kp.copy()
             small[:, :2] = 0.2 * kp[:, :2] + 10.0
             people.insert(0, small)
+        elif distractor is not False:
+            people.insert(0, distractor[t])
         doc = {"version": 1.3, "people": [{"person_id": [-1], "pose_keypoints_2d": p.ravel().tolist()} for p in people]}
         (folder / f"{stem}_{t:06d}.json").write_text(json.dumps(doc))
 
@@ -95,7 +104,7 @@ def make_project(root, scene, fmt="halpe26", pose_model: str | None = "Body_with
     written = {}
     for cam in cameras:
         written[cam] = projected(scene, cam, fmt)
-        write_people(root / "pose" / f"{cam}_json", cam, written[cam])
+        write_people(root / "pose" / f"{cam}_json", cam, written[cam], distractor=projected(scene, cam, fmt, other=True))
     (root / "calibration").mkdir(parents=True, exist_ok=True)
     (root / "calibration" / "Calib_scene.toml").write_text(calib_toml(scene))
     lines = ["[project]", f"frame_rate = {json.dumps(frame_rate)}", "multi_person = false"]
@@ -152,6 +161,32 @@ def test_pose2sim_project_round_trip(tmp_path, scene, capsys):
         X = triangulate(imported.cameras, {c.name: c.detectors["pose2sim"].keypoints[t, 19, :2] for c in imported.cameras})
         row = np.searchsorted(gt.timestamps, capture.cameras[0].timestamps[t])
         np.testing.assert_allclose(X, hips[row].mean(axis=0), atol=1e-6)
+
+
+def test_several_people_are_followed_and_one_chosen_in_every_camera(tmp_path, scene, capsys):
+    """Files holding two people (and Pose2Sim's empty placeholders): the import follows them and
+    keeps one person in every camera, as ``detect`` does; the per-frame order of the files is
+    shuffled, so no index and no per-frame rule could keep one person."""
+    written = make_project(tmp_path / "p", scene)
+    rng = np.random.default_rng(0)
+    for cam in CAMERAS:
+        child = projected(scene, cam, "halpe26", other=True)
+        for t, path in enumerate(sorted((tmp_path / "p" / "pose" / f"{cam}_json").iterdir())):
+            people = [written[cam][t], child[t]]
+            if cam == "cam2" and t % 2:  # a per-frame rule on size alone would take the child here
+                people[1] = child[t].copy()
+                people[1][:, :2] = 3.0 * (child[t][:, :2] - child[t][0, :2]) + child[t][0, :2]
+            entries = [{"pose_keypoints_2d": p.ravel().tolist()} for p in people] + [{"pose_keypoints_2d": []}]
+            path.write_text(json.dumps({"people": [entries[i] for i in rng.permutation(3)]}))
+    argv = ["capture", "import", "--pose2sim", str(tmp_path / "p"), "--fps", "30", "--out", str(tmp_path / "cap")]
+    code, out = run_cli(argv, capsys)
+    assert code == 0, out
+    assert "fitting person 0: the largest of those seen by the most cameras" in out
+    imported = load_capture(tmp_path / "cap")
+    for cam in imported.cameras:
+        np.testing.assert_allclose(cam.detectors["pose2sim"].keypoints, expected(written[cam.name], "halpe26", missing=()), rtol=0, atol=1e-9)
+    people = imported.metadata["people"]
+    assert people["chosen"] == 0 and all(len(p["tracks"]) == 3 for p in people["people"][:2])
 
 
 @pytest.mark.parametrize("fmt", FORMATS)

@@ -107,12 +107,32 @@ def add_capture_flags(parser: argparse.ArgumentParser) -> None:
 
 
 def _person(text: str) -> str | int:
-    if text == "largest":
-        return text
+    from mocapgraph.data_tools.tracking.people import parse_person
+
     try:
-        return int(text)
-    except ValueError:
-        raise MocapgraphError(f"--person must be 'largest' or an index, got {text!r}") from None
+        person = parse_person(text)
+    except MocapgraphError:
+        person = -1
+    if isinstance(person, int) and person < 0:
+        raise MocapgraphError(f"--person must be 'largest', 'central' or an index (0, 1, ...), got {text!r}")
+    return person
+
+
+def _image_sizes(cameras, videos, calibration) -> dict[str, tuple[int, int]]:
+    """Each camera's ``(width, height)`` from its video, else its calibration; an error naming the
+    cameras that have neither (following people across cameras needs them)."""
+    from mocapgraph.data_tools.io.importers import video_info
+
+    calib = {c.name: c.image_size for c in calibration or [] if c.image_size is not None}
+    sizes = {n: tuple(video_info(videos[n])[0]) if n in videos else calib.get(n) for n in cameras}
+    unknown = [n for n, size in sizes.items() if size is None]
+    if unknown:
+        raise MocapgraphError(
+            f"several people in the keypoints: following them across cameras needs each camera's image size, unknown for "
+            f"{', '.join(unknown)} (no video, no size in the calibration); give --videos or a calibration with image sizes, "
+            "or keep one person per file with --person INDEX"
+        )
+    return sizes
 
 
 def _rates(items: list[str] | None) -> tuple[float | None, dict[str, float]]:
@@ -148,12 +168,13 @@ def _array_path(item: str) -> tuple[str, Path, str | None]:
 def cmd_import(args) -> None:
     from mocapgraph.data_tools.io.capture import MANIFEST as CAPTURE_MANIFEST
     from mocapgraph.data_tools.io.importers import assemble_capture, video_info
-    from mocapgraph.data_tools.io.keypoint_files import AUTO, OPENPOSE_SUFFIX, read_json_keypoints, read_keypoint_array
+    from mocapgraph.data_tools.io.keypoint_files import AUTO, OPENPOSE_SUFFIX, one_per_frame, read_json_people, read_keypoint_array
 
     inputs = [p for p in (args.pose2sim, args.calibration, *(args.openpose or []), *(args.keypoints or []), *(args.videos or [])) if p]
     reserve_output(args.out, args.overwrite, CAPTURE_MANIFEST, inputs=[_named_path(str(p))[1] for p in inputs])  # never into an input
     person = _person(args.person)
     keypoints: dict[str, tuple] = {}
+    people: dict[str, list[np.ndarray]] = {}  # camera → every person of each frame, for JSON sources
 
     def add(camera: str, entry: tuple, flag: str) -> None:
         if camera in keypoints:
@@ -166,9 +187,10 @@ def cmd_import(args) -> None:
 
         if args.openpose or args.keypoints or args.videos:
             raise MocapgraphError("--pose2sim reads the keypoints and videos of its project; leave out --openpose, --keypoints and --videos")
-        project = read_pose2sim_project(args.pose2sim, args.format or AUTO, person, args.calibration, args.units)
+        project = read_pose2sim_project(args.pose2sim, args.format or AUTO, "largest" if isinstance(person, str) else person, args.calibration, args.units)
         for camera, (fmt, kp, boxes) in project.keypoints.items():
             add(camera, ("pose2sim", fmt, kp, boxes), "--pose2sim")
+        people.update(project.people)
         videos, project_rate = project.videos, project.frame_rate
         if args.intrinsics_only and project.calibration is None:
             raise MocapgraphError(f"{project.root}: --intrinsics-only needs a calibration, and the project has none (calibration/)")
@@ -183,8 +205,9 @@ def cmd_import(args) -> None:
         videos, calibration = videos_from_args(args.videos), calibration_from_args(args)
     for item in args.openpose or []:
         name, folder = _named_path(item)
-        kp, boxes, fmt = read_json_keypoints(folder, args.format or "openpose25", person, suffix=OPENPOSE_SUFFIX)
-        add(name or folder.name, ("openpose", fmt, kp, boxes), "--openpose")
+        frames, fmt = read_json_people(folder, args.format or "openpose25", suffix=OPENPOSE_SUFFIX)
+        add(name or folder.name, ("openpose", fmt, *one_per_frame(frames, "largest" if isinstance(person, str) else person)), "--openpose")
+        people[name or folder.name] = frames
     for item in args.keypoints or []:
         name, path, key = _array_path(item)
         kp, boxes, fmt = read_keypoint_array(path, args.format or AUTO, key)
@@ -203,12 +226,43 @@ def cmd_import(args) -> None:
         if not rates[camera]:
             where = "its video does not state it" if camera in videos else "it has no video"
             raise MocapgraphError(f"camera {camera}: frame rate unknown ({where}); pass --fps F or --fps {camera}=F")
-    path = assemble_capture(
-        videos, keypoints, calibration, rates, args.out, args.name,
+    capture_options = dict(
         moving=moving_from_args(args), video_mode="copy" if args.copy_videos else "link", overwrite=args.overwrite,
         require_equal_length=not args.allow_unequal_length,
     )  # fmt: skip
+    crowded = [n for n, frames in people.items() if any(len(found) > 1 for found in frames)]
+    if crowded and isinstance(person, str):
+        path = _import_following(args, keypoints, people, crowded, person, videos, calibration, rates, capture_options)
+    else:
+        path = assemble_capture(videos, keypoints, calibration, rates, args.out, args.name, **capture_options)
     print_summary(path)
+
+
+def _import_following(args, keypoints, people, crowded, person, videos, calibration, rates, capture_options):
+    """Several people in some camera's files: follow each camera's people over time, find the same
+    person across the cameras and write a capture of the one ``person`` picks, as ``detect`` does."""
+    from mocapgraph.data_tools.tracking.people import track_people, write_person_capture
+
+    formats = sorted({entry[1] for entry in keypoints.values()})
+    if len(formats) > 1:
+        raise MocapgraphError(
+            f"several people in the keypoints of {', '.join(crowded)}: following them across cameras needs one keypoint "
+            f"format, got {', '.join(formats)}; keep one person per file with --person INDEX"
+        )
+    fmt = formats[0]
+    tracks = {}
+    for camera, (source, _, kp, _) in keypoints.items():
+        frames = people.get(camera) or [kp[t][None] if np.isfinite(kp[t, :, 2]).any() else kp[t][:0] for t in range(len(kp))]
+        tracks[camera] = track_people(frames, fmt)
+        if tracks[camera].num_tracks == 0:
+            raise MocapgraphError(f"camera {camera}: no person followed for 5 frames or more in its {len(frames)} frames ({source})")
+    sources = sorted({entry[0] for entry in keypoints.values()})
+    path, choice = write_person_capture(
+        tracks, _image_sizes(list(keypoints), videos, calibration), rates, args.out, calibration=calibration, person=person,
+        videos=videos, detector="+".join(sources), keypoint_format=fmt, name=args.name, **capture_options,
+    )  # fmt: skip
+    print(choice.describe())
+    return path
 
 
 def _add_import_parser(subparsers) -> None:
@@ -239,7 +293,9 @@ def _add_import_parser(subparsers) -> None:
     )  # fmt: skip
     parser.add_argument(
         "--person", default="largest",
-        help="which person to keep per frame: 'largest' box (default) or an index into each file's people list",
+        help="the person to import: 'largest' (tallest in the images, default) or 'central' (nearest the images' centres): where "
+        "files hold several people, each camera's people are followed over time and matched across cameras (as detect), and that "
+        "person of those seen by the most cameras is kept; or an INDEX into each file's people list (Pose2Sim's pose-associated order)",
     )  # fmt: skip
     parser.add_argument("--videos", nargs="+", metavar="VIDEO", help="videos: PATH (camera = file stem) or CAMERA=PATH")
     parser.add_argument(

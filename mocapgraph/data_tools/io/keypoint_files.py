@@ -88,13 +88,13 @@ def _normalise(fmt: KeypointFormat, raw, source: str) -> np.ndarray:
         raise CaptureError(str(exc)) from None
 
 
-def read_json_keypoints(
-    folder: str | Path, fmt: str | KeypointFormat = AUTO, person: str | int = "largest", suffix: str = ".json"
-) -> tuple[np.ndarray, np.ndarray, str]:
-    """Read a folder of OpenPose-style JSON files, one per frame, keeping one person per frame.
+def read_json_people(folder: str | Path, fmt: str | KeypointFormat = AUTO, suffix: str = ".json") -> tuple[list[np.ndarray], str]:
+    """Read a folder of OpenPose-style JSON files, one per frame, keeping every person of each frame.
 
     Each file is ``{"people": [{"pose_keypoints_2d": [x0, y0, c0, x1, ...]}, ...]}`` (OpenPose's
-    ``--write_json``, and what Pose2Sim writes for every detector it runs).
+    ``--write_json``, and what Pose2Sim writes for every detector it runs). A person entry whose
+    ``pose_keypoints_2d`` is empty holds no detection (Pose2Sim's tracking writes such placeholders
+    to keep its people's order) and is left out.
 
     Args:
         folder: holds the per-frame files, taken in natural order of their names
@@ -102,19 +102,15 @@ def read_json_keypoints(
         fmt: keypoint format name, or ``"auto"``: the one format with as many points as the first
             person found (an error when no format or several have that many: BODY_25 and BODY_25B).
             Every person of every file must have that many points.
-        person: ``"largest"`` keeps the person with the largest box of detected points in each
-            frame; an int keeps ``people[person]`` (NaN where a frame has fewer people).
         suffix: the file name ending of the frames (OpenPose: ``_keypoints.json``).
 
     Returns:
-        keypoints ``(T, K, 3)`` pixels and confidence, NaN where missing; boxes ``(T, 5)``
-        ``x0, y0, x1, y1, score`` of the kept person's detected points (score = their mean
-        confidence), NaN rows for frames without a person; the format's registry name.
+        per frame, the people's keypoints ``(N_t, K, 3)`` pixels and confidence, normalised (NaN
+        where missing; ``N_t`` may be 0), in the file's order; the format's registry name.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise CaptureError(f"{folder}: keypoint folder not found")
-    _check_person(person, folder)
     files = sorted((p for p in folder.iterdir() if p.name.endswith(suffix) and p.is_file()), key=natural_key)
     if not files:
         hint = " (OpenPose writes them with --write_json)" if suffix == OPENPOSE_SUFFIX else ""
@@ -135,6 +131,8 @@ def read_json_keypoints(
             raw = entry.get("pose_keypoints_2d") if isinstance(entry, dict) else None
             if not isinstance(raw, list):
                 raise CaptureError(f"{where}: missing or not a list")
+            if not raw:
+                continue
             if len(raw) % 3:
                 raise CaptureError(f"{where}: {len(raw)} values is not x, y, confidence for each point (not a multiple of 3)")
             try:
@@ -153,14 +151,48 @@ def read_json_keypoints(
         frames.append(found)
     if auto and told_by is None:
         raise CaptureError(f"{folder}: no person in any of its {len(files)} files, so its keypoint format is unknown; give it with --format")
-    keypoints = np.full((len(files), fmt.num_points, 3), np.nan)
-    boxes = np.full((len(files), 5), np.nan)
-    for t, found in enumerate(frames):
-        candidates = [(kp, person_box(kp)) for kp in (_normalise(fmt, arr, source) for arr, source in found)]
-        chosen = _choose(candidates, person)
+    people = [np.array([_normalise(fmt, arr, source) for arr, source in found]).reshape(len(found), fmt.num_points, 3) for found in frames]
+    return people, fmt.name
+
+
+def one_per_frame(people: list[np.ndarray], person: str | int = "largest") -> tuple[np.ndarray, np.ndarray]:
+    """One person per frame of :func:`read_json_people`'s output, without following anyone.
+
+    Args:
+        people: per frame, ``(N_t, K, 3)`` normalised keypoints.
+        person: ``"largest"`` keeps the person with the largest box of detected points in each
+            frame; an int keeps ``people[person]`` (NaN where a frame has fewer people).
+
+    Returns:
+        keypoints ``(T, K, 3)``, NaN where missing; boxes ``(T, 5)`` ``x0, y0, x1, y1, score`` of
+        the kept person's detected points (score = their mean confidence), NaN rows for frames
+        without a person.
+    """
+    _check_person(person, "one_per_frame")
+    num_points = people[0].shape[1] if people else 0
+    keypoints = np.full((len(people), num_points, 3), np.nan)
+    boxes = np.full((len(people), 5), np.nan)
+    for t, found in enumerate(people):
+        chosen = _choose([(kp, person_box(kp)) for kp in found], person)
         if chosen is not None:
             keypoints[t], boxes[t] = chosen
-    return keypoints, boxes, fmt.name
+    return keypoints, boxes
+
+
+def read_json_keypoints(
+    folder: str | Path, fmt: str | KeypointFormat = AUTO, person: str | int = "largest", suffix: str = ".json"
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """Read a folder of OpenPose-style JSON files keeping one person per frame
+    (:func:`read_json_people`, then :func:`one_per_frame` with ``person``).
+
+    Returns:
+        keypoints ``(T, K, 3)`` pixels and confidence, NaN where missing; boxes ``(T, 5)``; the
+        format's registry name.
+    """
+    _check_person(person, Path(folder))
+    people, name = read_json_people(folder, fmt, suffix)
+    keypoints, boxes = one_per_frame(people, person)
+    return keypoints, boxes, name
 
 
 def read_keypoint_array(path: str | Path, fmt: str | KeypointFormat = AUTO, key: str | None = None) -> tuple[np.ndarray, np.ndarray, str]:

@@ -24,7 +24,7 @@ import numpy as np
 from mocapgraph.data_tools.io.calibration import CameraCalibration, read_calibration
 from mocapgraph.data_tools.io.capture import CaptureError
 from mocapgraph.data_tools.io.checks import parse_toml, read_text
-from mocapgraph.data_tools.io.keypoint_files import AUTO, natural_key, read_json_keypoints
+from mocapgraph.data_tools.io.keypoint_files import AUTO, natural_key, one_per_frame, read_json_people
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +48,10 @@ class Pose2SimProject:
         root: the project folder.
         pose_folder: the folder the keypoints were read from (``pose``, ``pose-sync`` or ``pose-associated``).
         keypoints: camera → (format name, keypoints ``(T, K, 3)`` pixels, confidence in [0, 1],
-            NaN where missing; boxes ``(T, 5)``), cameras in natural order of their names.
+            NaN where missing; boxes ``(T, 5)``), one person per frame as ``person`` said,
+            cameras in natural order of their names.
+        people: camera → every person of each frame, ``(N_t, K, 3)`` per frame (for following
+            several people: :func:`~mocapgraph.data_tools.tracking.people.track_people`).
         format_source: where the format came from (for the user: ``--format``, ``Config.toml``, or the point count).
         calibration: the cameras of the calibration, or None when the project has none.
         calibration_path: its file.
@@ -59,6 +62,7 @@ class Pose2SimProject:
     root: Path
     pose_folder: Path
     keypoints: dict[str, tuple[str, np.ndarray, np.ndarray]]
+    people: dict[str, list[np.ndarray]]
     format_source: str
     calibration: list[CameraCalibration] | None
     calibration_path: Path | None
@@ -155,7 +159,7 @@ def read_pose2sim_project(
         project: the project folder (the one holding ``pose/`` or ``pose-sync/``).
         fmt: keypoint format of the JSON files; ``"auto"`` takes ``Config.toml``'s ``pose_model``
             when there is one, else tells it from the number of points per person.
-        person: which person to keep per frame and camera (see :func:`read_json_keypoints`).
+        person: which person to keep per frame and camera in ``keypoints`` (see :func:`~mocapgraph.data_tools.io.keypoint_files.one_per_frame`).
         calibration: a calibration file to use instead of the project's ``calibration/`` folder.
         units: the calibration's length unit (see :func:`read_calibration`).
 
@@ -195,11 +199,11 @@ def read_pose2sim_project(
             f"{root / 'videos'}: {_names(stray)} match no keypoint folder in {pose_folder} ({_names(p.name for p in folders.values())}); "
             "name each video after its camera"
         )
-    keypoints = {}
+    keypoints, people = {}, {}
     for cam, folder in folders.items():
-        kp, boxes, found = read_json_keypoints(folder, fmt, person)
-        keypoints[cam] = (found, kp, boxes)
+        people[cam], found = read_json_people(folder, fmt)
+        keypoints[cam] = (found, *one_per_frame(people[cam], person))
     return Pose2SimProject(
-        root=root, pose_folder=pose_folder, keypoints=keypoints, format_source=source, calibration=cams,
+        root=root, pose_folder=pose_folder, keypoints=keypoints, people=people, format_source=source, calibration=cams,
         calibration_path=calib_path, videos=videos, frame_rate=_frame_rate(root, config),
     )  # fmt: skip
