@@ -194,6 +194,34 @@ def test_fragments_of_one_person_in_a_camera_are_merged():
     assert picked.people[merged].frames["cam2"] == int(np.isfinite(kp[0, :, :, 2]).any(-1).sum())
 
 
+def test_a_person_split_in_two_for_a_frame_is_one_person():
+    """cam2's detector splits the first person into two partial skeletons at frame 30 (upper and
+    lower body), and the track restarts there: the two tracks share that frame, join that person
+    all the same, and the merged keypoints keep the fuller piece there."""
+    scene = make_scene(seed=2)
+    kp = scene.tracks["cam2"]
+    first, second = kp[0].copy(), kp[0].copy()
+    first[31:], second[:30] = np.nan, np.nan
+    first[30, 23:] = np.nan  # the upper body's piece
+    second[30, :23] = np.nan  # the legs' piece
+    tracks = scene_tracks(scene)
+    tracks["cam2"] = PersonTracks(np.stack([first, kp[1], second]))
+    sizes = {c: scene.size for c in tracks}
+    choice = select_person(tracks, sizes, {c: scene.K for c in tracks})
+    assert {p.tracks["cam2"] for p in choice.people} == {(0, 2), (1,)}
+    merged = [k for k, p in enumerate(choice.people) if p.tracks["cam2"] == (0, 2)][0]
+    picked = choose_person(choice.association, tracks, sizes, person=merged)
+    fuller = first[30] if np.isfinite(first[30, :, 2]).sum() > np.isfinite(second[30, :, 2]).sum() else second[30]
+    np.testing.assert_array_equal(picked.keypoints["cam2"][30], fuller)
+    np.testing.assert_array_equal(np.delete(picked.keypoints["cam2"], 30, axis=0), np.delete(kp[0], 30, axis=0))
+    assert picked.people[merged].frames["cam2"] == int(np.isfinite(kp[0, :, :, 2]).any(-1).sum())
+    # sharing more frames than a split explains, they stay two people
+    first[31:34] = kp[0, 31:34]
+    tracks["cam2"] = PersonTracks(np.stack([first, kp[1], second]))
+    choice = select_person(tracks, sizes, {c: scene.K for c in tracks})
+    assert (0, 2) not in {p.tracks.get("cam2") for p in choice.people}
+
+
 def test_write_person_capture(tmp_path):
     scene = make_scene(seed=3)
     tracks = scene_tracks(scene)

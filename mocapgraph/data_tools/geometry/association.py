@@ -55,6 +55,11 @@ MIN_VISIBILITY = 0.5
 anyway): they make no correspondence here, and no box nor track link in
 :mod:`mocapgraph.data_tools.tracking.people`."""
 
+MAX_SHARED_FRAMES = 2
+"""Frames two tracks of one camera may share and still be one person: a detector that splits a
+person into two partial skeletons for a frame restarts the track there (OpenPose BODY_25B on the
+man on Pose2Sim's treadmill, cam01 frame 37), and the two pieces overlap by that frame."""
+
 _MAX_RELABEL_ROUNDS = 3
 _RANSAC_CONFIDENCE = 0.999
 _RANSAC_SAMPLE = 400
@@ -343,8 +348,10 @@ def associate_tracks(
                                   cam_a, i, cam_b, j, s.inlier_ratio, s.median_error_px, len(s.swapped_frames), s.frames)  # fmt: skip
 
     def compatible(group_a, group_b) -> bool:
-        """No camera would see the person twice in a frame."""
-        return not any(cam_a == cam_b and (seen[cam_a][i] & seen[cam_a][j]).any() for cam_a, i in group_a for cam_b, j in group_b)
+        """No camera would see the person twice in more than :data:`MAX_SHARED_FRAMES` frames."""
+        return not any(
+            cam_a == cam_b and (seen[cam_a][i] & seen[cam_a][j]).sum() > MAX_SHARED_FRAMES for cam_a, i in group_a for cam_b, j in group_b
+        )
 
     groups = [[(cam, i)] for cam in cameras for i in range(len(coords[cam]))]
     while True:

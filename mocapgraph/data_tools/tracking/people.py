@@ -291,9 +291,10 @@ def _summary(tracks: Mapping[str, PersonTracks], sizes: Mapping[str, tuple[int, 
     heights, offsets, frames = [], [], {}
     for cam, indices in person.items():
         w, h = sizes[cam]
-        boxes = tracks[cam].boxes((w, h))[list(indices)].reshape(-1, 5)
+        boxes = tracks[cam].boxes((w, h))[list(indices)]
+        frames[cam] = int(np.isfinite(boxes[..., 0]).any(0).sum())
+        boxes = boxes.reshape(-1, 5)
         boxes = boxes[np.isfinite(boxes[:, 0])]
-        frames[cam] = len(boxes)
         heights.append(np.median(boxes[:, 3] - boxes[:, 1]) / h)
         centre = 0.5 * (boxes[:, :2] + boxes[:, 2:4])
         offsets.append(np.median(np.linalg.norm((centre - [w / 2, h / 2]) / (0.5 * np.hypot(w, h)), axis=1)))
@@ -368,12 +369,13 @@ def select_person(
 
 
 def _merge(rows: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """One ``(T, K, 3)`` array from a person's tracks in a camera (they never share a frame:
-    the association forbids it)."""
+    """One ``(T, K, 3)`` array from a person's tracks in a camera. They share a frame only where a
+    detector split the person in two (at most ``MAX_SHARED_FRAMES``, the association's bound);
+    there the piece with more points is kept."""
     out = np.full(shape, np.nan)
     for row in rows:
-        seen = np.isfinite(row[..., 2]).any(-1)
-        out[seen] = row[seen]
+        more = np.isfinite(row[..., 2]).sum(-1) > np.isfinite(out[..., 2]).sum(-1)
+        out[more] = row[more]
     return out
 
 
