@@ -286,12 +286,12 @@ def goals(runs: dict, association: dict) -> dict:
     sm, bl = runs["smartmocap"]["calibrated"], runs["baseline"]["calibrated"]
     out = {}
     for key in COMPARED:
-        a, b = sm[key], bl[key]
+        a, b = sm.get(key), bl.get(key)
         if key == "scale_error_pct":
             a, b = (None if v is None else abs(v) for v in (a, b))
         out[key] = {"goal": "smartmocap <= baseline (calibrated intrinsics)", "smartmocap": a, "baseline": b,
                     "met": None if a is None or b is None else bool(a <= b)}  # fmt: skip
-    guessed, calibrated = runs["smartmocap"]["guessed"]["camera_cm"], sm["camera_cm"]
+    guessed, calibrated = runs["smartmocap"]["guessed"].get("camera_cm"), sm.get("camera_cm")
     limit = None if calibrated is None else round(GUESSED_FACTOR * calibrated, 2)
     out["guessed_camera_cm"] = {
         "goal": f"smartmocap with guessed intrinsics <= {GUESSED_FACTOR:g} x with calibrated", "smartmocap": guessed,
@@ -334,7 +334,12 @@ def bench_real(clip: str | Path | None = None) -> dict:
                 capture = load_capture(path)
                 for pipeline in PIPELINES:
                     log.info("bench real: %s on person %s, %s intrinsics", pipeline, person, intrinsics)
-                    result, seconds = run_pipeline(pipeline, capture)
+                    try:
+                        result, seconds = run_pipeline(pipeline, capture)
+                    except MocapgraphError as exc:  # a pipeline that cannot fit this person is a finding, not the bench's end
+                        log.warning("bench real: %s on person %s, %s intrinsics: %s", pipeline, person, intrinsics, exc)
+                        row["runs"][pipeline][intrinsics] = {"error": str(exc)}
+                        continue
                     row["runs"][pipeline][intrinsics] = measure(result, seconds, capture, lab)
             row["goals"] = goals(row["runs"], row["association"])
             out["people"].append(row)
@@ -440,9 +445,10 @@ def _person_lines(person: dict, columns: list[tuple[str, str]], width: int) -> l
     for key, title in _ROWS:
         goal = person["goals"].get(key)
         note = "" if goal is None else f"   smartmocap <= baseline (calibrated): {_met(goal)}"
-        lines.append(f"  {title:29s}" + "".join(f"{_cell(person['runs'][p][i][key]):>{width}}" for p, i in columns) + note)
+        lines.append(f"  {title:29s}" + "".join(f"{_cell(person['runs'][p][i].get(key, 'failed')):>{width}}" for p, i in columns) + note)
     g = person["goals"]["guessed_camera_cm"]
     lines.append(f"  goal: {g['goal']}: {_cell(g['smartmocap'])} cm against {_cell(g['limit'])} cm: {_met(g)}")
+    lines += [f"  {p} {i} failed: {person['runs'][p][i]['error']}" for p, i in columns if "error" in person["runs"][p][i]]
     return lines
 
 
@@ -450,7 +456,7 @@ def format_report(report: dict) -> str:
     """The benchmark as tables for a terminal: per person, metrics by pipeline and intrinsics."""
     cams = report["cameras"]
     columns = [(p, i) for p in PIPELINES for i in INTRINSICS]
-    cells = [_cell(person["runs"][p][i][key]) for person in report["people"] for p, i in columns for key, _ in _ROWS]
+    cells = [_cell(person["runs"][p][i].get(key, "failed")) for person in report["people"] for p, i in columns for key, _ in _ROWS]
     width = max(len(f"{p} {i}") for p, i in columns) + 2
     width = max(width, *(len(c) + 2 for c in cells))
     lines = [
