@@ -10,10 +10,11 @@ the room is metres off; a mixed-up person hundreds of pixels).
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
-from real_clip import clip_capture
+from real_clip import BODY25B_CLIP, clip_capture
 
 from mocapgraph.benchmarks import real
 from mocapgraph.body.keypoint_formats import get_format
@@ -222,19 +223,24 @@ def test_track_files_round_trip_and_errors(clip, tmp_path):
 
 
 @pytest.mark.slow  # one SmartMocap run on the clip, four offset rounds: 1.5-3 min on two shared cores
-def test_the_definitions_table_reproduces_from_the_clip():
+@pytest.mark.parametrize(
+    "clip, fmt, points, absent",
+    [(real.DEFAULT_CLIP, "blazepose33", {"left_hip", "right_hip", "left_heel", "right_foot_index", "nose"}, "left_pinky"),
+     (BODY25B_CLIP, "openpose25b", {"left_hip", "right_hip", "left_heel", "right_big_toe", "nose"}, "head_top")],
+)  # fmt: skip
+def test_the_definitions_table_reproduces_from_the_clip(clip, fmt, points, absent):
     """``mocapgraph bench definitions`` (the cameras held at the lab's calibration, the offsets
-    measured from zero) gives the committed BlazePose table back to within 3 mm per component
-    (the solvers' run-to-run change; the table's largest entries are 1-3 cm), reports the
-    reprojection of every body point, and says where the table came from."""
+    measured from zero) gives the committed table of the clip's format back to within 3 mm per
+    component (the solvers' run-to-run change; the tables' largest entries are 1-3 cm), reports
+    the reprojection of every body point, and says where the table came from."""
     from mocapgraph.body.definition_priors import FITTED_OFFSETS_M, PROVENANCE
 
-    fit = real.fit_clip_offsets(real.DEFAULT_CLIP)
-    assert fit["format"] == "blazepose33" and fit["committed_m"] == FITTED_OFFSETS_M["blazepose33"]
-    assert set(fit["offsets_m"]) == set(FITTED_OFFSETS_M["blazepose33"])
+    fit = real.fit_clip_offsets(clip)
+    assert fit["format"] == fmt and fit["committed_m"] == FITTED_OFFSETS_M[fmt]
+    assert set(fit["offsets_m"]) == set(FITTED_OFFSETS_M[fmt])
     for name, value in fit["offsets_m"].items():
-        np.testing.assert_allclose(value, FITTED_OFFSETS_M["blazepose33"][name], atol=0.003, err_msg=name)
-    points = fit["reprojection_px"]["keypoint"]["blazepose33"]
-    assert {"left_hip", "right_hip", "left_heel", "right_foot_index", "nose"} <= set(points) and "left_pinky" not in points
+        np.testing.assert_allclose(value, FITTED_OFFSETS_M[fmt][name], atol=0.003, err_msg=name)
+    reprojected = fit["reprojection_px"]["keypoint"][fmt]
+    assert points <= set(reprojected) and absent not in reprojected
     assert set(fit["reprojection_px"]["camera"]) == {"cam01", "cam02", "cam03", "cam04"}
-    assert "tests/data/real" in PROVENANCE["blazepose33"]["clip"] and "bench definitions" in PROVENANCE["blazepose33"]["command"]
+    assert Path(clip).name in PROVENANCE[fmt]["clip"] and "bench definitions" in PROVENANCE[fmt]["command"]

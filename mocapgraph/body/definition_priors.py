@@ -34,6 +34,21 @@ FITTED_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] = {
         "left_heel": (-0.0006, 0.0164, 0.0002),
         "left_foot_index": (0.0004, 0.0029, -0.0091),
     },
+    # OpenPose BODY_25B as shipped in the pose2sim 0.8.4 wheel, on the lab's two-participant trial
+    "openpose25b": {
+        "nose": (0.0, 0.0043, -0.0005),
+        "left_eye": (-0.0038, -0.0007, 0.0058),
+        "left_ear": (-0.0037, -0.0038, 0.0136),
+        "left_shoulder": (0.0032, 0.005, -0.007),
+        "left_elbow": (0.0001, -0.0011, -0.0092),
+        "left_wrist": (0.0055, -0.0017, 0.0024),
+        "left_hip": (0.0083, 0.0047, -0.002),
+        "left_knee": (-0.0049, -0.0062, -0.0012),
+        "left_ankle": (0.0033, -0.0061, 0.0092),
+        "left_big_toe": (0.0075, -0.0087, -0.0074),
+        "left_small_toe": (-0.0128, -0.0046, -0.0145),
+        "left_heel": (0.002, 0.0102, 0.0079),
+    },
 }  # fmt: skip
 """Per format, the left and midline points' offsets ``(x left, y up, z forward)`` in metres, in the
 frame of the body segment carrying the point (right points mirror their left partner)."""
@@ -42,6 +57,11 @@ PROVENANCE: dict[str, dict[str, str]] = {
     "blazepose33": {
         "clip": "tests/data/real (Pose2Sim Demo_MultiPerson, the largest person)",
         "command": "mocapgraph bench definitions --json (SmartMocap, lab intrinsics, cam01, cam02 and cam04 held at the lab's Calib.qca.txt, 4 offset rounds from zero)",
+        "date": "2026-11-25",
+    },
+    "openpose25b": {
+        "clip": "tests/data/real_body25b (pose2sim 0.8.4's OpenPose BODY_25B output of a two-participant trial in the same lab, the largest person)",
+        "command": "mocapgraph bench definitions --clip tests/data/real_body25b --json (SmartMocap, lab intrinsics, cam01, cam02 and cam04 held at the lab's Calib.qca.txt, 4 offset rounds from zero)",
         "date": "2026-11-25",
     },
 }
