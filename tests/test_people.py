@@ -176,6 +176,18 @@ def test_select_person_by_rule_and_rank():
         parse_person("tallest")
 
 
+def _cam2_in_pieces(scene, first: np.ndarray, second: np.ndarray):
+    """cam2's first track replaced by two pieces ``first`` and ``second``: asserts they join one
+    person, and returns that person's rank and the choice of them."""
+    tracks = scene_tracks(scene)
+    tracks["cam2"] = PersonTracks(np.stack([first, scene.tracks["cam2"][1], second]))
+    sizes = {c: scene.size for c in tracks}
+    choice = select_person(tracks, sizes, {c: scene.K for c in tracks})
+    assert {p.tracks["cam2"] for p in choice.people} == {(0, 2), (1,)}
+    merged = [k for k, p in enumerate(choice.people) if p.tracks["cam2"] == (0, 2)][0]
+    return merged, choose_person(choice.association, tracks, sizes, person=merged)
+
+
 def test_fragments_of_one_person_in_a_camera_are_merged():
     """cam2's track of the first person is cut in two at frame 30 (as a tracker does after a long
     occlusion): both fragments join that person, and its keypoints there are whole again."""
@@ -183,13 +195,7 @@ def test_fragments_of_one_person_in_a_camera_are_merged():
     kp = scene.tracks["cam2"]
     first, second = kp[0].copy(), kp[0].copy()
     first[30:], second[:30] = np.nan, np.nan
-    tracks = scene_tracks(scene)
-    tracks["cam2"] = PersonTracks(np.stack([first, kp[1], second]))
-    sizes = {c: scene.size for c in tracks}
-    choice = select_person(tracks, sizes, {c: scene.K for c in tracks})
-    assert {p.tracks["cam2"] for p in choice.people} == {(0, 2), (1,)}
-    merged = [k for k, p in enumerate(choice.people) if p.tracks["cam2"] == (0, 2)][0]
-    picked = choose_person(choice.association, tracks, sizes, person=merged)
+    merged, picked = _cam2_in_pieces(scene, first, second)
     np.testing.assert_array_equal(picked.keypoints["cam2"], kp[0])
     assert picked.people[merged].frames["cam2"] == int(np.isfinite(kp[0, :, :, 2]).any(-1).sum())
 
@@ -204,21 +210,16 @@ def test_a_person_split_in_two_for_a_frame_is_one_person():
     first[31:], second[:30] = np.nan, np.nan
     first[30, 23:] = np.nan  # the upper body's piece
     second[30, :23] = np.nan  # the legs' piece
-    tracks = scene_tracks(scene)
-    tracks["cam2"] = PersonTracks(np.stack([first, kp[1], second]))
-    sizes = {c: scene.size for c in tracks}
-    choice = select_person(tracks, sizes, {c: scene.K for c in tracks})
-    assert {p.tracks["cam2"] for p in choice.people} == {(0, 2), (1,)}
-    merged = [k for k, p in enumerate(choice.people) if p.tracks["cam2"] == (0, 2)][0]
-    picked = choose_person(choice.association, tracks, sizes, person=merged)
+    merged, picked = _cam2_in_pieces(scene, first, second)
     fuller = first[30] if np.isfinite(first[30, :, 2]).sum() > np.isfinite(second[30, :, 2]).sum() else second[30]
     np.testing.assert_array_equal(picked.keypoints["cam2"][30], fuller)
     np.testing.assert_array_equal(np.delete(picked.keypoints["cam2"], 30, axis=0), np.delete(kp[0], 30, axis=0))
     assert picked.people[merged].frames["cam2"] == int(np.isfinite(kp[0, :, :, 2]).any(-1).sum())
     # sharing more frames than a split explains, they stay two people
     first[31:34] = kp[0, 31:34]
+    tracks = scene_tracks(scene)
     tracks["cam2"] = PersonTracks(np.stack([first, kp[1], second]))
-    choice = select_person(tracks, sizes, {c: scene.K for c in tracks})
+    choice = select_person(tracks, {c: scene.size for c in tracks}, {c: scene.K for c in tracks})
     assert (0, 2) not in {p.tracks.get("cam2") for p in choice.people}
 
 
