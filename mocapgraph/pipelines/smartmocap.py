@@ -78,6 +78,11 @@ REFINE_THRESHOLD_PX = 15.0
 """Inlier threshold of the RANSAC triangulation that starts the static cameras' free points."""
 REFINE_ITERATIONS = 50
 """Levenberg-Marquardt iterations of that adjustment at most (the generic baseline's)."""
+REFINE_KEEP_FACTOR = 1.5
+"""The static cameras' adjustment on free points is kept only if the body, solved again to the
+adjusted cameras, reprojects at most this many times its median before: free points of a person
+who barely moves can pull the cameras metres away (pose2sim 0.8.4's BODY_25B trial, its second
+person: 1-2 m, 692 px after against 11 px before), where a body cannot follow."""
 MOTION_GROUND_SIGMAS = (1e-4, 1e-4)
 """σ (rad, m) of the motion prior's ground at z = 0: SmartMocap's world is the ground plane."""
 
@@ -597,16 +602,25 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         refined = refine_static_cameras(model, estimate, labels, options.static_gm_sigma_px, REFINE_THRESHOLD_PX, REFINE_ITERATIONS)
         if refined is not None:
             cameras = aligned_to(refined.cameras, estimate)
-            notes.append(static_refinement_note(model, estimate, refined, cameras))
+            note = static_refinement_note(model, estimate, refined, cameras)
+            trial = replace(estimate, cameras=list(estimate.cameras), log=list(estimate.log))
             for c, T in cameras.items():
-                estimate.cameras[c] = np.repeat(T[None], len(estimate.cameras[c]), axis=0)
-            bg, graph, solved_final = final_pass(
-                model, body, options, learned, estimate, offsets, options.offset_iterations, imu=imu, tracks=tracks, hold=tuple(refined.cameras),
+                trial.cameras[c] = np.repeat(T[None], len(trial.cameras[c]), axis=0)
+            trial_bg, _, trial_solved = final_pass(
+                model, body, options, learned, trial, offsets, options.offset_iterations, imu=imu, tracks=tracks, hold=tuple(refined.cameras),
                 gm_sigma_px=options.held_gm_sigma_px,
             )
-            estimate = bg.read(solved_final.values, estimate)
-            estimate.log += list(solved_final.log)
-            labels = bg.relabelled(estimate)
+            trial = trial_bg.read(trial_solved.values, trial)
+            trial.log += list(trial_solved.log)
+            trial_labels = trial_bg.relabelled(trial)
+            px_before = reprojection_medians(body, every_view.relabelled(labels), estimate, offsets)["all"]
+            px_after = reprojection_medians(body, every_view.relabelled(trial_labels), trial, offsets)["all"]
+            if px_after <= REFINE_KEEP_FACTOR * px_before:
+                notes.append(note)
+                bg, solved_final, estimate, labels = trial_bg, trial_solved, trial, trial_labels
+            else:
+                log.warning("smartmocap: the static cameras' adjustment on free points not kept (body reprojection %.1f px on them, %.1f px before)", px_after, px_before)
+                notes.append(f"{note.replace('then held while', 'not kept: held while', 1)}, the body reprojected at {px_after:.1f} px against {px_before:.1f} px before")
     swaps = combined_swaps(model, before, labels)
     notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + imu_support_notes(bg, clock_offsets)
     reprojection = reprojection_medians(body, every_view.relabelled(labels), estimate, offsets)
