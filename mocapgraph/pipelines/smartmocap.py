@@ -600,13 +600,18 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
             notes.append(static_refinement_note(model, estimate, refined, cameras))
             for c, T in cameras.items():
                 estimate.cameras[c] = np.repeat(T[None], len(estimate.cameras[c]), axis=0)
+            # On the labels the cameras were just adjusted on, held: re-decided from the body as
+            # it stood against the cameras before they moved (8-25 cm on the lab clip), the legs'
+            # labels of the clip's second person, whose feet stand 20 cm apart, went over to the
+            # other leg in every camera at once, and the body crossed its legs to follow them
+            # (frames 3-24; the lab's triangulation has them uncrossed). A swap shared by every
+            # camera is the body's side, which the epipolar check's anatomy decides, not a solve.
             bg, graph, solved_final = final_pass(
-                model, body, options, learned, estimate, offsets, options.offset_iterations, imu=imu, tracks=tracks, hold=tuple(refined.cameras),
-                gm_sigma_px=options.held_gm_sigma_px,
+                model.relabelled(labels), body, options, learned, estimate, offsets, options.offset_iterations, imu=imu, tracks=tracks,
+                hold=tuple(refined.cameras), gm_sigma_px=options.held_gm_sigma_px, relabel=False,
             )
             estimate = bg.read(solved_final.values, estimate)
             estimate.log += list(solved_final.log)
-            labels = bg.relabelled(estimate)
     swaps = combined_swaps(model, before, labels)
     notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + imu_support_notes(bg, clock_offsets)
     reprojection = reprojection_medians(body, every_view.relabelled(labels), estimate, offsets)
