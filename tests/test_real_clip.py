@@ -9,6 +9,7 @@ the room is metres off; a mixed-up person hundreds of pixels).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -18,9 +19,10 @@ from real_clip import BODY25B_CLIP, clip_capture
 
 from mocapgraph.benchmarks import real
 from mocapgraph.body.keypoint_formats import get_format
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.cli.main import main
-from mocapgraph.data_tools.geometry.camera_model import undistort_pixels
-from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_ransac
+from mocapgraph.data_tools.geometry.camera_model import project_points, undistort_pixels
+from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_points, triangulate_ransac
 from mocapgraph.data_tools.io.capture import load_capture
 from mocapgraph.data_tools.tracking.track_files import load_track_set, save_track_set
 from mocapgraph.errors import MocapgraphError
@@ -121,9 +123,10 @@ def test_smartmocap_on_the_real_clip(measured):
     (measured; the baseline's 4.9 cm, 2.2 deg, 58 cm, 18 % too large, 6.2 deg): at or below the
     generic baseline on every camera measure (the issue's goal). Metric without being told the
     person's height: nearer the lab's scale, and with the rigid alignment, than the baseline with
-    its assumed height. Reprojection 8.7 px as the pipeline reports it (with its keypoint offsets,
-    over every view, the ones left out of the last pass too), the same from the result's keypoints
-    (they carry the offsets), against the baseline's 4.8 px on the same points (measured)."""
+    its assumed height. Reprojection 7.3 px as the pipeline reports it (with its keypoint offsets
+    and their drift per state, over every view, the ones left out of the last pass too; 8.7 px
+    without the drift), the same from the result's keypoints (they carry both), against the
+    baseline's 4.8 px on the same points (measured)."""
     sm, bl = measured("smartmocap", "calibrated"), measured("baseline", "calibrated")
     assert sm["cameras_estimated"] == 4
     assert sm["camera_cm"] < 10.0 and sm["camera_deg"] < 3.5, sm
@@ -132,7 +135,7 @@ def test_smartmocap_on_the_real_clip(measured):
     assert sm["camera_cm"] <= bl["camera_cm"] and sm["camera_deg"] <= bl["camera_deg"], (sm["camera_cm"], bl["camera_cm"])  # 3.85 / 4.87 cm
     assert sm["ground_tilt_deg"] <= bl["ground_tilt_deg"]
     assert any("static cameras adjusted on" in note for note in sm["notes"])
-    assert sm["reprojection_from"] == "pipeline" and sm["reprojection_px"] < 12.0 and sm["reprojection_px_of_result"] < 12.0
+    assert sm["reprojection_from"] == "pipeline" and sm["reprojection_px"] < 8.0 and sm["reprojection_px_of_result"] < 8.0
     assert set(sm["reprojection_px_per_keypoint"]) >= {"left_hip", "right_foot_index"}
     assert sm["reprojection_px_body_points"] == pytest.approx(sm["reprojection_px_of_result"], abs=0.01)  # a body result: only its points anyway
 
@@ -162,16 +165,24 @@ def _elbow_angles_deg(points: np.ndarray, names) -> np.ndarray:
     return np.stack(out, axis=-1)
 
 
+@pytest.fixture(scope="module")
+def second_person(tmp_path_factory):
+    """The clip's second person (rank 1, beside the treadmill) with the lab's intrinsics: the
+    capture, the choice and SmartMocap's result with its defaults (45-90 s)."""
+    path, choice = clip_capture(tmp_path_factory.mktemp("second") / "capture", 1, "calibrated")
+    capture = load_capture(path)
+    result, _ = real.run_pipeline("smartmocap", capture)
+    return capture, choice, result
+
+
 @pytest.mark.slow  # 45-90 s: a SmartMocap run on the clip's second person
-def test_bent_arms_are_fitted_on_the_real_clip(clip, lab, tmp_path):
+def test_bent_arms_are_fitted_on_the_real_clip(clip, lab, second_person):
     """The person beside the treadmill (rank 1, no swaps) bends the elbows to 90-120 deg (the
     lab's triangulation). A fit that frees the pose from the mean body's straight arms under the
     robust kernel alone left them at 170-176 deg, the wrists 34 and 67 px off (measured); the
     chunks now anneal from L2 when the pose is freed: wrists 5 and 11 px, elbows within a few
     degrees where they bend most (measured)."""
-    path, choice = clip_capture(tmp_path / "capture", 1, "calibrated")
-    capture = load_capture(path)
-    result, _ = real.run_pipeline("smartmocap", capture)
+    _, choice, result = second_person
     names = get_format(clip.keypoint_format).names
     P = np.stack([projection_matrix(lab[c].K, lab[c].world_T_camera) for c in clip.cameras])
     x, w = [], []
@@ -190,6 +201,62 @@ def test_bent_arms_are_fitted_on_the_real_clip(clip, lab, tmp_path):
     assert np.median(np.abs(fitted - truth)[bent]) < 25.0, (np.round(truth[bent]), np.round(fitted[bent]))
     wrists = result.parameters["reprojection_px"]["keypoint"][clip.keypoint_format]
     assert wrists["left_wrist"] < 15.0 and wrists["right_wrist"] < 20.0, wrists
+
+
+def _labellings_the_lab_shows(clip, lab, choice) -> np.ndarray:
+    """Which labelling of each camera's detections the lab's calibration shows: ``(C, H, T)`` per
+    camera, swap kind (``SWAP_KINDS``) and frame, how much farther (px, median over the points the
+    kind moves) the detections so relabelled lie than as detected from where the other three
+    cameras' triangulation (as detected, the lab's poses) projects: positive where the labels as
+    detected are the lab's, NaN where the camera does not see those points (``H = 0``: zeros)."""
+    names = get_format(clip.keypoint_format).names
+    perms = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+    x, w = {}, {}
+    for c in clip.cameras:
+        kp = choice.keypoints[c]
+        x[c] = undistort_pixels(kp[..., :2], lab[c].K, lab[c].distortion)
+        w[c] = np.where(np.nan_to_num(kp[..., 2]) >= 0.5, kp[..., 2], 0.0)
+    T = min(len(v) for v in x.values())
+    out = np.zeros((len(clip.cameras), len(perms), T))
+    for i, c in enumerate(clip.cameras):
+        others = [o for o in clip.cameras if o != c]
+        P = np.stack([projection_matrix(lab[o].K, lab[o].world_T_camera) for o in others])
+        X = triangulate_points(P, np.stack([x[o][:T] for o in others]).reshape(len(others), -1, 2), np.stack([w[o][:T] for o in others]).reshape(len(others), -1))
+        predicted, _ = project_points(X.reshape(T, -1, 3), lab[c].world_T_camera, lab[c].K)
+
+        def distance(perm: np.ndarray, moved: np.ndarray) -> np.ndarray:
+            d = np.linalg.norm(x[c][:T, perm][:, moved] - predicted[:, moved], axis=-1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # frames the camera does not see
+                return np.nanmedian(np.where(w[c][:T, perm][:, moved] > 0, d, np.nan), axis=1)
+
+        for h in range(1, len(perms)):
+            moved = np.flatnonzero(perms[h] != perms[0])
+            out[i, h] = distance(perms[h], moved) - distance(perms[0], moved)
+    return out
+
+
+@pytest.mark.slow  # the SmartMocap run of the second person's fixture
+def test_the_second_persons_labels_are_the_ones_the_lab_shows(clip, lab, second_person):
+    """Which labelling of the second person's detections is right, the lab's calibration shows:
+    each camera's detections against the other three cameras' triangulation. On frames 3-24 the
+    legs as detected sit nearer it than the legs swapped in every camera, by 64-97 px in cam01,
+    cam02 and cam04 and 37-46 px in cam03, whose lab pose disagrees with its detections (README;
+    measured; the person stands with the feet 20 cm apart). With the definition prior
+    fitted on the clip, the last pass (cameras held after their adjustment on free points)
+    re-decided the labels from the body as it stood against the cameras before they moved, took
+    the legs swapped in all four cameras on those frames and crossed the body's legs to follow
+    (21-22 frames per camera, measured); it now keeps the labels the cameras were adjusted on.
+    Every camera-frame the result relabels must be one the lab shows swapped of that kind."""
+    _, choice, result = second_person
+    margin = _labellings_the_lab_shows(clip, lab, choice)
+    frames = np.arange(3, 25)
+    legs = margin[:, SWAP_KINDS.index("legs"), frames]
+    assert np.all(legs > 25.0), np.round(legs)
+    relabelled = np.stack([result.cameras[c].swaps[: margin.shape[-1]] for c in clip.cameras])
+    assert not np.any(relabelled[:, frames] > 0), relabelled[:, frames]
+    for i, t in zip(*np.nonzero(relabelled > 0)):
+        assert margin[i, relabelled[i, t], t] < 0.0, (clip.cameras[i], t, SWAP_KINDS[relabelled[i, t]], margin[i, :, t])
 
 
 def test_the_clip_folder_must_hold_the_clip(tmp_path, monkeypatch, capsys):

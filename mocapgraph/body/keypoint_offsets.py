@@ -49,6 +49,13 @@ def with_offsets(table: BodyTable, offsets) -> BodyTable:
     return replace(table, markers=markers)
 
 
+def drifted(keypoints: np.ndarray, rotations: np.ndarray, table: BodyTable, drift) -> np.ndarray:
+    """``(N, K, 3)`` world keypoints of a posed body moved by per-state offsets ``drift (N, K, 3)``
+    (metres, carrier frames, on top of the table's own), ``rotations (N, J, 3, 3)`` the joints'
+    world rotations of the same forward kinematics."""
+    return keypoints + np.einsum("nkxy,nky->nkx", rotations[:, carrier_joints(table)], np.asarray(drift, dtype=float))
+
+
 def offset_basis(table: BodyTable, parts: tuple[str, ...] | None = None) -> np.ndarray:
     """``(K, 3, D)``: the offsets ``basis @ θ`` (carrier frames, metres) of the table's points as
     a linear function of ``D`` parameters ``θ``: per mapped left/right pair three (the first
@@ -90,4 +97,4 @@ def offset_shape_table(table: BodyTable, basis: np.ndarray) -> BodyTable:
     return replace(table, d_markers=d_markers, d_offsets=d_offsets)
 
 
-__all__ = ["MIRROR", "carrier_joints", "offset_basis", "offset_parameters", "offset_shape_table", "with_offsets"]
+__all__ = ["MIRROR", "carrier_joints", "drifted", "offset_basis", "offset_parameters", "offset_shape_table", "with_offsets"]

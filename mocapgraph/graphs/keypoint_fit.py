@@ -14,16 +14,16 @@ estimate: :func:`estimate_offsets`. A pipeline solves again with it (:class:`~mo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, with_offsets
+from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, drifted, with_offsets
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.native import forward_kinematics
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, left_right_pairs
-from mocapgraph.data_tools.geometry.triangulation import triangulate_points
+from mocapgraph.data_tools.geometry.triangulation import triangulate_points, triangulate_ransac
 from mocapgraph.graphs.state_model import Estimate, StateModel
 
 PRIOR_FRAMES = 30.0
@@ -42,11 +42,14 @@ def _intrinsics(model: StateModel, estimate: Estimate, c: int) -> np.ndarray:
     return K
 
 
-def _posed(body: BodyModel, estimate: Estimate, fmt: str, offsets=None):
+def _posed(body: BodyModel, estimate: Estimate, fmt: str, offsets=None, drift=None):
+    """The format's table (with ``offsets``) and its forward kinematics at ``estimate``, the
+    keypoints moved by the per-state ``drift`` where given (:func:`estimate_drift`)."""
     table = body.table(estimate.shape, keypoints=fmt)
     if offsets is not None:
         table = with_offsets(table, offsets)
-    return table, forward_kinematics(table, estimate.roots, estimate.poses)
+    fk = forward_kinematics(table, estimate.roots, estimate.poses)
+    return table, fk if drift is None else replace(fk, keypoints=drifted(fk.keypoints, fk.rotations, table, drift))
 
 
 @dataclass
@@ -80,12 +83,12 @@ def offsets_from_table(fmt: str, table: dict[str, list[float]]) -> np.ndarray:
     return out
 
 
-def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt: str, prior: np.ndarray | None = None) -> OffsetFit:
-    """The offsets of format ``fmt``'s points from the body's, at the solve ``estimate`` of ``model``
-    (its observations as the solve labelled them): see the module docstring. With a ``prior``
-    ``(K, 3)`` (:func:`~mocapgraph.body.definition_priors.prior_offsets`) each median is shrunk
-    towards it instead of zero, and a point never seen or dropped keeps it."""
-    table, fk = _posed(body, estimate, fmt)
+def _samples(body: BodyModel, model: StateModel, estimate: Estimate, fmt: str, offsets=None, threshold_px: float | None = None):
+    """The format's table and ``(N, K, 3)`` per state, each point triangulated from the solved
+    cameras minus the body's (with ``offsets``), in its carrier's frame (metres; NaN where fewer
+    than two views see it or the body has no such point). Triangulated by weighted DLT, or with
+    ``threshold_px`` by RANSAC over the views (a detector's gross miss in one view left out)."""
+    table, fk = _posed(body, estimate, fmt, offsets)
     N, K = fk.keypoints.shape[:2]
     carrier = carrier_joints(table)
     samples = np.full((N, K, 3), np.nan)
@@ -94,10 +97,21 @@ def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt
         if len(views) < 2:
             continue
         P = np.stack([_intrinsics(model, estimate, o.camera) @ np.linalg.inv(estimate.cameras[o.camera][o.frame])[:3] for o in views])
-        X = triangulate_points(P, np.stack([o.observed for o in views]), np.stack([o.weights for o in views]))
+        x, w = np.stack([o.observed for o in views]), np.stack([o.weights for o in views])
+        X = triangulate_points(P, x, w) if threshold_px is None else triangulate_ransac(P, x, w, threshold_px=threshold_px)[0]
         G = fk.rotations[i, carrier]  # (K, 3, 3) world-aligned carrier frames
         samples[i] = np.einsum("kyx,ky->kx", G, X - fk.keypoints[i])
     samples[:, ~table.mapped] = np.nan
+    return table, samples
+
+
+def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt: str, prior: np.ndarray | None = None) -> OffsetFit:
+    """The offsets of format ``fmt``'s points from the body's, at the solve ``estimate`` of ``model``
+    (its observations as the solve labelled them): see the module docstring. With a ``prior``
+    ``(K, 3)`` (:func:`~mocapgraph.body.definition_priors.prior_offsets`) each median is shrunk
+    towards it instead of zero, and a point never seen or dropped keeps it."""
+    table, samples = _samples(body, model, estimate, fmt)
+    K = samples.shape[1]
     names = _names(fmt)
     offsets, frames = np.zeros((K, 3)), np.zeros(K, dtype=int)
     groups = [(i, j) for i, j in left_right_pairs(list(names))]
@@ -125,11 +139,41 @@ def estimate_offsets(body: BodyModel, model: StateModel, estimate: Estimate, fmt
     return OffsetFit(fmt, offsets, frames, dropped)
 
 
-def _observation_errors(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None):
+DRIFT_THRESHOLD_PX = 15.0
+"""RANSAC threshold of the per-state triangulation :func:`estimate_drift` measures from."""
+
+
+def estimate_drift(
+    body: BodyModel, model: StateModel, estimate: Estimate, fmt: str, offsets: np.ndarray | None, sigmas: tuple[float, float, float]
+) -> np.ndarray:
+    """``(N, K, 3)`` metres, carrier frames: how format ``fmt``'s points drift from their constant
+    ``offsets`` over the states of the solve ``estimate`` (a detector's definition moves with the
+    pose and the view), smoothed in time.
+
+    Per state, each point is triangulated from the solved cameras (RANSAC,
+    :data:`DRIFT_THRESHOLD_PX`) and compared with the body's (with ``offsets``) in its carrier's
+    frame; per point and axis the drift ``d`` minimises ``Σ_t (d_t − s_t)²/σ_obs² + Σ_t (d_t −
+    d_{t−1})²/σ_step² + Σ_t d_t²/σ_prior²`` over the samples ``s`` seen, ``sigmas = (σ_obs,
+    σ_step, σ_prior)``: the step's σ keeps it slowly varying and the prior's keeps it a few
+    centimetres at most, so the body stays a body. Zero where the body has no such point."""
+    sigma_obs, sigma_step, sigma_prior = sigmas
+    table, samples = _samples(body, model, estimate, fmt, offsets, DRIFT_THRESHOLD_PX)
+    N, K = samples.shape[:2]
+    seen = np.isfinite(samples).all(axis=-1)  # (N, K)
+    step = np.diff(np.eye(N), axis=0)
+    smoothing = step.T @ step / sigma_step**2 + np.eye(N) / sigma_prior**2
+    out = np.zeros((N, K, 3))
+    for k in np.flatnonzero(table.mapped & seen.any(axis=0)):
+        A = smoothing + np.diag(seen[:, k] / sigma_obs**2)
+        out[:, k] = np.linalg.solve(A, np.where(seen[:, k, None], samples[:, k], 0.0) / sigma_obs**2)
+    return out
+
+
+def _observation_errors(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None, drift: dict[str, np.ndarray] | None = None):
     """Per observation at a state (not interpolated): ``(state, observation, (K,) pixel errors,
-    (K,) usable)``, the body posed with the formats' ``offsets``; a point the body has no
-    counterpart for (unmapped, e.g. BlazePose's fingers) is never usable."""
-    posed = {fmt: _posed(body, estimate, fmt, (offsets or {}).get(fmt)) for fmt in model.formats}
+    (K,) usable)``, the body posed with the formats' ``offsets`` (and per-state ``drift``); a
+    point the body has no counterpart for (unmapped, e.g. BlazePose's fingers) is never usable."""
+    posed = {fmt: _posed(body, estimate, fmt, (offsets or {}).get(fmt), (drift or {}).get(fmt)) for fmt in model.formats}
     mapped = {fmt: table.mapped for fmt, (table, _) in posed.items()}
     posed = {fmt: fk.keypoints for fmt, (_, fk) in posed.items()}
     for i, obs in enumerate(model.states):
@@ -144,13 +188,15 @@ def _observation_errors(body: BodyModel, model: StateModel, estimate: Estimate, 
             yield i, o, error, (o.weights > 0) & np.isfinite(error) & (p[:, 2] > 0) & mapped[o.fmt]
 
 
-def reprojection_medians(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None) -> dict:
+def reprojection_medians(
+    body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None, drift: dict[str, np.ndarray] | None = None
+) -> dict:
     """Median pixel distance between each observation and the solved body's projection (with
-    the formats' ``offsets``): ``{"camera": {name: px}, "keypoint": {format: {point: px}}, "all": px}``,
+    the formats' ``offsets`` and per-state ``drift``): ``{"camera": {name: px}, "keypoint": {format: {point: px}}, "all": px}``,
     over the observations at a state (not interpolated) with confidence > 0."""
     per_camera: dict[int, list] = {}
     per_point: dict[str, dict[int, list]] = {}
-    for _, o, error, use in _observation_errors(body, model, estimate, offsets):
+    for _, o, error, use in _observation_errors(body, model, estimate, offsets, drift):
         per_camera.setdefault(o.camera, []).extend(error[use])
         points = per_point.setdefault(o.fmt, {})
         for k in np.flatnonzero(use):

@@ -655,7 +655,7 @@ class OnlineFusion:
         else:
             options = SmartmocapOptions(
                 motion_prior=o.bootstrap_motion_prior, keypoint_offsets=o.bootstrap_keypoint_offsets, offset_rounds=o.bootstrap_offset_rounds,
-                covariances=False, workers=1, detectors=detectors,
+                covariances=False, workers=1, detectors=detectors, drift_sigmas_m=None,  # the result's keypoints are not read
                 graph=replace(SmartmocapOptions().graph, focal="fixed", swaps=o.graph.swaps),
             )  # fmt: skip
             result = run_smartmocap(mini, options)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.keypoint_offsets import with_offsets
+from mocapgraph.body.keypoint_offsets import drifted, with_offsets
 from mocapgraph.body.labelling import SWAP_KINDS, then
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.native import forward_kinematics
@@ -29,6 +29,7 @@ def estimate_result(
     all_frames: bool = False,
     swaps: dict[int, np.ndarray] | None = None,
     keypoint_offsets: dict[str, np.ndarray] | None = None,
+    drift: dict[str, np.ndarray] | None = None,
 ) -> Result:
     """The result of a solve of ``model``.
 
@@ -40,6 +41,8 @@ def estimate_result(
         keypoint_offsets: per format, ``(K, 3)`` the definition offsets the solve used
             (:mod:`mocapgraph.body.keypoint_offsets`): the keypoints are then where the body puts
             the detector's points, the ones its reprojection was measured on.
+        drift: per format, ``(N, K, 3)`` the per-state offsets on top of those the solve used
+            (:func:`~mocapgraph.graphs.keypoint_fit.estimate_drift`), in the keypoints too.
 
     Joints and keypoints (of the first observed format; NaN for its points the body has no
     counterpart for) come from the body model's forward kinematics; ``flags`` hold each state's detection count and whether it had none.
@@ -49,7 +52,8 @@ def estimate_result(
     table = body.table(estimate.shape, keypoints=fmt)
     if keypoint_offsets and fmt in keypoint_offsets:
         table = with_offsets(table, keypoint_offsets[fmt])
-    keypoints = forward_kinematics(table, estimate.roots, estimate.poses).keypoints
+    posed = forward_kinematics(table, estimate.roots, estimate.poses)
+    keypoints = posed.keypoints if not drift or fmt not in drift else drifted(posed.keypoints, posed.rotations, table, drift[fmt])
     keypoints[:, ~table.mapped] = np.nan  # points the body has no counterpart for
     detections = model.detections_per_state()
     result = Result(
