@@ -317,6 +317,16 @@ def test_refined_static_cameras_are_held_after_static_refine_s(rich):
     fusion.finish()
     for t in (2.4, 2.9):
         assert _state_error_m(fusion, rich, int(round((t - fusion.t0) / fusion.period))) < 0.06, t
+    # once held, the smoothed track of each is its held pose at every frame (those still in the
+    # window then: its variable's estimate when it left, which their factors moved by up to 1.8 mm
+    # more), nearer the truth than the filtered track
+    filtered, smoothed = fusion.results()
+    for c in refined:
+        track = smoothed.cameras[rich.cameras[c].name]
+        assert np.abs(track.world_T_camera - fusion._fixed[c]).max() < 5e-3, c
+        assert np.abs(track.world_T_camera[track.timestamps < 1.0] - fusion._fixed[c]).max() < 1e-12, c
+    errors = [evaluate(r, rich).metrics["static_mcpe_cameras_m"] for r in (filtered, smoothed)]
+    assert errors[1] < errors[0], errors
 
 
 def test_online_results_export_and_read_back(rich_run, tmp_path):
@@ -381,7 +391,10 @@ def test_root_pitch_does_not_step_after_a_whole_body_swap_run():
     frames tilt the pelvis about its left-right axis, the direction only the pose priors split from
     the hips' and spine's rotations; with the hips' constant-velocity prior as stiff as the other
     joints' (20 rad/s^2) the tilt stayed (root pitch error -4.4 deg in 3-4 s, -10.1 in 5-6 s, smoothed
-    RA-MPJPE 51.4 mm). With ``hips_sigma_rad_s2`` (80) it comes back: measured -4.3 / -4.8 deg, 38.4 mm."""
+    RA-MPJPE 51.4 mm). With ``hips_sigma_rad_s2`` (80) it comes back: measured -4.3 / -4.8 deg, 38.4 mm.
+    The pitch itself was -4.6 deg from the bootstrap on, taken by spine3 (the pose GMM leaves it out):
+    with it held at ``unmodelled_sigma_rad`` 0.2 rad, measured -0.6 / -1.5 deg, mean |pitch| 1.8 deg
+    (5.5 before), 30.6 mm."""
     from scipy.spatial.transform import Rotation
 
     capture = synthesize("rich", seed=0, duration_s=10.0)
@@ -393,7 +406,8 @@ def test_root_pitch_does_not_step_after_a_whole_body_swap_run():
     t = moved.timestamps[have]
     before, after = pitch[(t >= 3) & (t < 4)].mean(), pitch[(t >= 5) & (t < 6)].mean()
     assert abs(after - before) < 2.5, (before, after)
-    assert evaluate(smoothed, capture).metrics["ra_mpjpe_m"] < 0.045
+    assert np.abs(pitch).mean() < 3.0
+    assert evaluate(smoothed, capture).metrics["ra_mpjpe_m"] < 0.036
 
 
 def test_regulariser_on_the_joints_the_pose_gmm_leaves_out():
@@ -417,7 +431,9 @@ def test_regulariser_on_the_joints_the_pose_gmm_leaves_out():
     assert error == pytest.approx(expected, rel=1e-12)
     assert regularizer_sigmas(GraphOptions(), gmm) == 0.8  # off by default: every joint at pose_prior_sigma_rad
     assert OnlineFusion(static_rig(synthesize("aircap", seed=0, duration_s=1.0)))._graph.unmodelled_sigma_rad == 0.2
-    assert OnlineFusion(static_rig(synthesize("rich", seed=0, duration_s=1.0)))._graph.unmodelled_sigma_rad is None
+    assert OnlineFusion(static_rig(synthesize("rich", seed=0, duration_s=1.0)))._graph.unmodelled_sigma_rad == 0.2
+    rig = OnlineOptions(unmodelled_sigma_rad="rig")
+    assert OnlineFusion(static_rig(synthesize("rich", seed=0, duration_s=1.0)), rig)._graph.unmodelled_sigma_rad is None
 
 
 @pytest.fixture(scope="module")

@@ -186,13 +186,17 @@ class OnlineOptions:
     # within 0.2 mm either way; docs/online.md, "The root's pitch and the shape in the window")
     hips_sigma_rad_s2: float | None = 80.0
     # The pose regulariser's width on the joints the pose GMM does not model (spine3, collars,
-    # feet; graph.unmodelled_sigma_rad), in the loop and in the bootstrap's batch solve; "rig": 0.2
-    # rad on AirCap rigs, off (0.8 rad, as every joint) on uncalibrated ones. With only 0.8 rad there,
-    # a UAV's whole-body detector flip (not relabelled on UAVs, above) was explained by turning the
-    # upper body round on spine3 (up to 2.4 rad) and then the collars (3.4 rad), kept for a second
-    # by the arms' relabellings it drew (aircap 10 s, smoothed RA-MPJPE seed 0 0.097 -> 0.080 m,
-    # seed 1 0.080 -> 0.066 m; 0.1 rad: 0.088 m on seed 0; docs/online.md).
-    unmodelled_sigma_rad: float | None | str = "rig"
+    # feet; graph.unmodelled_sigma_rad), in the loop and in an AirCap bootstrap's batch solve
+    # ("rig": 0.2 rad on AirCap rigs, off, 0.8 rad as every joint, on uncalibrated ones). With only
+    # 0.8 rad there, a UAV's whole-body detector flip (not relabelled on UAVs, above) was explained
+    # by turning the upper body round on spine3 (up to 2.4 rad) and then the collars (3.4 rad), kept
+    # for a second by the arms' relabellings it drew (aircap 10 s, smoothed RA-MPJPE seed 0 0.097 ->
+    # 0.080 m, seed 1 0.080 -> 0.066 m; 0.1 rad: 0.088 m on seed 0); and on rich spine3 took the
+    # pelvis' pitch (the direction the hip keypoints do not see: -4.6 deg from the bootstrap on):
+    # at 0.2 rad, seeds 0-2 smoothed MPJPE 23.1 / 24.6 / 22.8 -> 21.0 / 22.8 / 20.9 mm, RA-MPJPE
+    # 38.4 / 40.2 / 40.5 -> 30.6 / 32.7 / 30.0 mm (0.1 rad: MPJPE 19.7 / 21.6 / 19.1 but RA-MPJPE
+    # 36.9 / 39.3 / 33.5 mm and seed 1's cameras 17.9 -> 21.7 mm; docs/online.md).
+    unmodelled_sigma_rad: float | None | str = 0.2
     # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
     # only while fewer of an update's detections take it than keep their body as detected (decided
     # at the new states' prediction: when most views see the body flipped, the prediction is
@@ -1236,7 +1240,18 @@ class OnlineFusion:
                 self._fixed[c] = self.smoother.estimate.atPose3(key).matrix()
             else:
                 self._fixed[c] = self._pending_values.atPose3(key).matrix()
+            self._settle_static(c, self._fixed[c])
             log.info("online: camera %r held from %.1f s at its refined estimate", self.rig.cameras[c].name, now)
+
+    def _settle_static(self, c: int, pose: np.ndarray) -> None:
+        """A refined static camera is one variable: once it is held (or the stream ends) its smoothed
+        pose, as a state's, is its last estimate, for every frame recorded so far (before, each frame
+        kept the estimate of when it left the window: rich 10 s, the static cameras' smoothed MCPE
+        10.6 / 13.3 / 12.3 -> 8.4 / 11.3 / 9.8 mm on seeds 0-2). The filtered track keeps each frame's
+        pose as estimated at its time."""
+        if self.record:
+            for t in self.smoothed_cameras[c]:
+                self.smoothed_cameras[c][t] = pose
 
     def _restart(self, error: RuntimeError, created: list[tuple[int, np.ndarray, np.ndarray]]) -> UpdateReport:
         """The smoother threw: its window is taken as smoothed as it is, the states this update
@@ -1356,6 +1371,9 @@ class OnlineFusion:
         self._flush()
         self.open = None
         self._retire(self.smoother.estimate, everything=True)
+        for c, key in self._static_keys.items():
+            if self.smoother.estimate.exists(key):
+                self._settle_static(c, self.smoother.estimate.atPose3(key).matrix())
 
     def results(self, capture_label: str = "", parameters: dict | None = None) -> tuple[Result, Result]:
         """``(filtered, smoothed)`` as results (after :meth:`finish`, with ``record``)."""
