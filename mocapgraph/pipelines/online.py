@@ -29,7 +29,8 @@ weak pose regulariser, and camera variables:
   moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
   SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held; its shape
   too, or (``shape="refine"``) the shape is a variable kept in the window as the static cameras
-  are, under a prior that holds the directions the joints barely see.
+  are, under a prior that holds the directions the joints barely see. The joints the pose GMM
+  leaves out are held at 0.2 rad here too (spine3 had taken the pelvis' pitch).
 
 **Bootstrap.** The first ``bootstrap_s`` seconds are buffered and solved in batch by the pipeline
 the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mode with the
@@ -60,8 +61,9 @@ throws (GTSAM's indeterminant-system error, ...) restarts the window from the tr
 **Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
 after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
 created inside a gap keeps its prediction. The *smoothed* one holds each state at its last
-estimate before it left the window (the smoother's lag). Both hold every camera (a held one at the
-pose its frames were explained with). ``docs/online.md`` has the numbers.
+estimate before it left the window (the smoother's lag); a refined static camera's frames all hold
+its last estimate (from when it is held, or the stream's end). Both hold every camera (a held one at
+the pose its frames were explained with). ``docs/online.md`` has the numbers.
 """
 
 from __future__ import annotations
