@@ -133,6 +133,8 @@ def test_bad_input_is_one_clear_error(rich):
         OnlineFusion(static_rig(rich), OnlineOptions(lag_s=0.01))
     with pytest.raises(MocapgraphError, match="static_camera_sigmas"):
         OnlineFusion(static_rig(rich), OnlineOptions(static_camera_sigmas=(0.01, 0.0)))
+    with pytest.raises(MocapgraphError, match="offset_updates_s"):
+        OnlineFusion(static_rig(rich), OnlineOptions(offset_updates_s=(3.0, -1.0)))
 
 
 @pytest.mark.slow  # 9 s: an AirCap bootstrap and stream

@@ -249,9 +249,9 @@ class OnlineOptions:
     # that use them. The bootstrap's, measured once on 1 s, are shrunk (30 frames of prior against
     # 30 of data) and taken on a body that leaned towards the detector's points: the offline fit's
     # offsets in their place took rich's smoothed MPJPE 23.1 -> 19.9 mm (seed 0). Measured again
-    # at 3 s they come nearer the simulator's and MPJPE improves by 0.7-1.4 mm (seeds 0-2), but
-    # the root's pitch then drifts (RA-MPJPE 38-40 -> 50-52 mm), so empty (the bootstrap's kept)
-    # by default (docs/online.md, "Where rich's MPJPE and MCPE excess lives").
+    # at 3 s they come nearer the simulator's and MPJPE improves by 0.7-1.6 mm (seeds 0-2), but
+    # the root's pitch then drifts (RA-MPJPE 38-41 -> 49-52 mm), so empty (the bootstrap's kept)
+    # by default (docs/online.md, "Where rich's MPJPE and MCPE excess lived").
     offset_updates_s: tuple[float, ...] = ()
     # The pose GMM and joint-rotation smoothness of 3 rad/s (offline: 6) keep iSAM2's undamped
     # Gauss-Newton out of the directions keypoints barely see (collars, shoulder twist): without
