@@ -133,6 +133,8 @@ def test_bad_input_is_one_clear_error(rich):
         OnlineFusion(static_rig(rich), OnlineOptions(lag_s=0.01))
     with pytest.raises(MocapgraphError, match="static_camera_sigmas"):
         OnlineFusion(static_rig(rich), OnlineOptions(static_camera_sigmas=(0.01, 0.0)))
+    with pytest.raises(MocapgraphError, match="offset_updates_s"):
+        OnlineFusion(static_rig(rich), OnlineOptions(offset_updates_s=(3.0, -1.0)))
 
 
 @pytest.mark.slow  # 9 s: an AirCap bootstrap and stream
@@ -317,6 +319,16 @@ def test_refined_static_cameras_are_held_after_static_refine_s(rich):
     fusion.finish()
     for t in (2.4, 2.9):
         assert _state_error_m(fusion, rich, int(round((t - fusion.t0) / fusion.period))) < 0.06, t
+    # once held, the smoothed track of each is its held pose at every frame (those still in the
+    # window then: its variable's estimate when it left, which their factors moved by up to 1.8 mm
+    # more), nearer the truth than the filtered track
+    filtered, smoothed = fusion.results()
+    for c in refined:
+        track = smoothed.cameras[rich.cameras[c].name]
+        assert np.abs(track.world_T_camera - fusion._fixed[c]).max() < 5e-3, c
+        assert np.abs(track.world_T_camera[track.timestamps < 1.0] - fusion._fixed[c]).max() < 1e-12, c
+    errors = [evaluate(r, rich).metrics["static_mcpe_cameras_m"] for r in (filtered, smoothed)]
+    assert errors[1] < errors[0], errors
 
 
 def test_online_results_export_and_read_back(rich_run, tmp_path):
@@ -381,7 +393,10 @@ def test_root_pitch_does_not_step_after_a_whole_body_swap_run():
     frames tilt the pelvis about its left-right axis, the direction only the pose priors split from
     the hips' and spine's rotations; with the hips' constant-velocity prior as stiff as the other
     joints' (20 rad/s^2) the tilt stayed (root pitch error -4.4 deg in 3-4 s, -10.1 in 5-6 s, smoothed
-    RA-MPJPE 51.4 mm). With ``hips_sigma_rad_s2`` (80) it comes back: measured -4.3 / -4.8 deg, 38.4 mm."""
+    RA-MPJPE 51.4 mm). With ``hips_sigma_rad_s2`` (80) it comes back: measured -4.3 / -4.8 deg, 38.4 mm.
+    The pitch itself was -4.6 deg from the bootstrap on, taken by spine3 (the pose GMM leaves it out):
+    with it held at ``unmodelled_sigma_rad`` 0.2 rad, measured -0.6 / -1.5 deg, mean |pitch| 1.8 deg
+    (5.5 before), 30.6 mm."""
     from scipy.spatial.transform import Rotation
 
     capture = synthesize("rich", seed=0, duration_s=10.0)
@@ -393,7 +408,8 @@ def test_root_pitch_does_not_step_after_a_whole_body_swap_run():
     t = moved.timestamps[have]
     before, after = pitch[(t >= 3) & (t < 4)].mean(), pitch[(t >= 5) & (t < 6)].mean()
     assert abs(after - before) < 2.5, (before, after)
-    assert evaluate(smoothed, capture).metrics["ra_mpjpe_m"] < 0.045
+    assert np.abs(pitch).mean() < 3.0
+    assert evaluate(smoothed, capture).metrics["ra_mpjpe_m"] < 0.036
 
 
 def test_regulariser_on_the_joints_the_pose_gmm_leaves_out():
@@ -417,7 +433,9 @@ def test_regulariser_on_the_joints_the_pose_gmm_leaves_out():
     assert error == pytest.approx(expected, rel=1e-12)
     assert regularizer_sigmas(GraphOptions(), gmm) == 0.8  # off by default: every joint at pose_prior_sigma_rad
     assert OnlineFusion(static_rig(synthesize("aircap", seed=0, duration_s=1.0)))._graph.unmodelled_sigma_rad == 0.2
-    assert OnlineFusion(static_rig(synthesize("rich", seed=0, duration_s=1.0)))._graph.unmodelled_sigma_rad is None
+    assert OnlineFusion(static_rig(synthesize("rich", seed=0, duration_s=1.0)))._graph.unmodelled_sigma_rad == 0.2
+    rig = OnlineOptions(unmodelled_sigma_rad="rig")
+    assert OnlineFusion(static_rig(synthesize("rich", seed=0, duration_s=1.0)), rig)._graph.unmodelled_sigma_rad is None
 
 
 @pytest.fixture(scope="module")
@@ -491,3 +509,34 @@ def test_stats_report_wall_clock_and_cpu_time(rich_run):
     # busy + 1 ms), since the summary rounds both rates to 0.1 and equal rates may then read 0.1 apart
     assert s["updates_per_s"] == pytest.approx(s["updates"] / stats.busy_seconds, abs=0.05)
     assert all(c <= w + 1e-3 for c, w in zip(stats.cpu_latencies, stats.latencies))
+
+
+@pytest.mark.slow  # ~40 s: a 3.5 s stream with its bootstrap
+def test_keypoint_offsets_measured_again_come_nearer_the_simulated_ones():
+    """``offset_updates_s``: measured again at 2.5 s on the states that left the window, the
+    detector's hip and shoulder definition offsets come nearer the simulator's (coco17: hip 3 cm
+    lateral and 2 cm forward, shoulder 1 cm lateral and 3 cm up, in the carrier's (lateral, up,
+    forward) axes) than the 1 s bootstrap's; the loop carries on with them (new factors, the
+    format's table rebuilt) and the body stays within its bound."""
+    from mocapgraph.data_tools.sim.detectors import KEYPOINT_DEFINITION_OFFSETS_M
+
+    capture = synthesize("rich", seed=0, duration_s=3.5)
+    fusion = OnlineFusion(static_rig(capture), OnlineOptions(lag_s=0.5, offset_updates_s=(2.5,)))
+    fmt = "coco17"
+    names = get_format(fmt).names
+    truth = KEYPOINT_DEFINITION_OFFSETS_M[fmt]
+    parts = [(names.index(f"left_{p}"), np.asarray(truth[p])) for p in ("hip", "shoulder")]
+    boot = None
+    for frame in stream(capture):
+        fusion.update(frame.camera, frame.timestamp, frame.keypoints, frame.box, frame.sensors, frame.detector)
+        if boot is None and fusion._bootstrapped:
+            boot = fusion._keypoint_offsets[fmt].copy()
+    fusion.finish()
+    again = fusion._keypoint_offsets[fmt]
+    assert len(fusion.stats.offset_update_seconds) == 1 and not fusion._kept and not fusion._left_states
+    err_boot = np.mean([np.linalg.norm(boot[k] - t) for k, t in parts])
+    err_again = np.mean([np.linalg.norm(again[k] - t) for k, t in parts])
+    # measured: 2.3 -> 1.9 cm (the offline fit of 10 s on seed 0: 1.8 cm)
+    assert err_again < 0.9 * err_boot, (err_boot, err_again)
+    _, smoothed = fusion.results()
+    assert evaluate(smoothed, capture).metrics["mpjpe_m"] < 0.035

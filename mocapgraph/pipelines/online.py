@@ -29,7 +29,8 @@ weak pose regulariser, and camera variables:
   moving one a pose per frame tied by smoothness and a constant-velocity model; the world is
   SmartMocap's ground plane. The bootstrap's keypoint-definition offsets are held; its shape
   too, or (``shape="refine"``) the shape is a variable kept in the window as the static cameras
-  are, under a prior that holds the directions the joints barely see.
+  are, under a prior that holds the directions the joints barely see. The joints the pose GMM
+  leaves out are held at 0.2 rad here too (spine3 had taken the pelvis' pitch).
 
 **Bootstrap.** The first ``bootstrap_s`` seconds are buffered and solved in batch by the pipeline
 the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mode with the
@@ -60,8 +61,9 @@ throws (GTSAM's indeterminant-system error, ...) restarts the window from the tr
 **Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
 after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
 created inside a gap keeps its prediction. The *smoothed* one holds each state at its last
-estimate before it left the window (the smoother's lag). Both hold every camera (a held one at the
-pose its frames were explained with). ``docs/online.md`` has the numbers.
+estimate before it left the window (the smoother's lag); a refined static camera's frames all hold
+its last estimate (from when it is held, or the stream's end). Both hold every camera (a held one at
+the pose its frames were explained with). ``docs/online.md`` has the numbers.
 """
 
 from __future__ import annotations
@@ -78,6 +80,7 @@ import gtsam
 import numpy as np
 
 from mocapgraph.body import load_body_model
+from mocapgraph.body.definition_priors import prior_offsets
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.body.skeleton import JOINT_NAMES, NUM_JOINTS
@@ -95,9 +98,10 @@ from mocapgraph.factors.smoothness import camera_acceleration_factor, camera_smo
 from mocapgraph.graphs.body_graph import GraphOptions, LearnedPriors, regularizer_sigmas, swap_hypotheses
 from mocapgraph.graphs.fixed_lag import FixedLagSmoother, Relinearisation, UpdateReport
 from mocapgraph.graphs.initialisation import resect
-from mocapgraph.graphs.keypoint_fit import offsets_from_table
+from mocapgraph.graphs.keypoint_fit import estimate_offsets, offsets_from_table
 from mocapgraph.graphs.navigation import IncrementalNavigation, IncrementalOptions, OnlineNoise, online_track
 from mocapgraph.graphs.state_model import Estimate, undistorted_keypoints
+from mocapgraph.pipelines.observations import capture_state_model
 from mocapgraph.priors.gmm_factor import pose_gmm_factor
 
 log = logging.getLogger(__name__)
@@ -184,13 +188,17 @@ class OnlineOptions:
     # within 0.2 mm either way; docs/online.md, "The root's pitch and the shape in the window")
     hips_sigma_rad_s2: float | None = 80.0
     # The pose regulariser's width on the joints the pose GMM does not model (spine3, collars,
-    # feet; graph.unmodelled_sigma_rad), in the loop and in the bootstrap's batch solve; "rig": 0.2
-    # rad on AirCap rigs, off (0.8 rad, as every joint) on uncalibrated ones. With only 0.8 rad there,
-    # a UAV's whole-body detector flip (not relabelled on UAVs, above) was explained by turning the
-    # upper body round on spine3 (up to 2.4 rad) and then the collars (3.4 rad), kept for a second
-    # by the arms' relabellings it drew (aircap 10 s, smoothed RA-MPJPE seed 0 0.097 -> 0.080 m,
-    # seed 1 0.080 -> 0.066 m; 0.1 rad: 0.088 m on seed 0; docs/online.md).
-    unmodelled_sigma_rad: float | None | str = "rig"
+    # feet; graph.unmodelled_sigma_rad), in the loop and in an AirCap bootstrap's batch solve
+    # ("rig": 0.2 rad on AirCap rigs, off, 0.8 rad as every joint, on uncalibrated ones). With only
+    # 0.8 rad there, a UAV's whole-body detector flip (not relabelled on UAVs, above) was explained
+    # by turning the upper body round on spine3 (up to 2.4 rad) and then the collars (3.4 rad), kept
+    # for a second by the arms' relabellings it drew (aircap 10 s, smoothed RA-MPJPE seed 0 0.097 ->
+    # 0.080 m, seed 1 0.080 -> 0.066 m; 0.1 rad: 0.088 m on seed 0); and on rich spine3 took the
+    # pelvis' pitch (the direction the hip keypoints do not see: -4.6 deg from the bootstrap on):
+    # at 0.2 rad, seeds 0-2 smoothed MPJPE 23.1 / 24.6 / 22.8 -> 21.0 / 22.8 / 20.9 mm, RA-MPJPE
+    # 38.4 / 40.2 / 40.5 -> 30.6 / 32.7 / 30.0 mm (0.1 rad: MPJPE 19.7 / 21.6 / 19.1 but RA-MPJPE
+    # 36.9 / 39.3 / 33.5 mm and seed 1's cameras 17.9 -> 21.7 mm; docs/online.md).
+    unmodelled_sigma_rad: float | None | str = 0.2
     # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
     # only while fewer of an update's detections take it than keep their body as detected (decided
     # at the new states' prediction: when most views see the body flipped, the prediction is
@@ -235,6 +243,16 @@ class OnlineOptions:
     # body's solve leaves them). The static cameras adjusted on free points (the offline default)
     # bring the cameras from 28.7 to 23.7 mm (static 22.6 -> 18.2 mm) and RA-MPJPE 33 -> 38 mm.
     bootstrap_offset_rounds: int = 1
+    # Times (seconds from the stream's start) at which an uncalibrated rig's keypoint-definition
+    # offsets are measured again (graphs.keypoint_fit.estimate_offsets, as offline's later rounds)
+    # on the states and camera frames that have left the window by then; the factors added after
+    # that use them. The bootstrap's, measured once on 1 s, are shrunk (30 frames of prior against
+    # 30 of data) and taken on a body that leaned towards the detector's points: the offline fit's
+    # offsets in their place took rich's smoothed MPJPE 23.1 -> 19.9 mm (seed 0). Measured again
+    # at 3 s they come nearer the simulator's and MPJPE improves by 0.7-1.6 mm (seeds 0-2), but
+    # the root's pitch then drifts (RA-MPJPE 38-41 -> 49-52 mm), so empty (the bootstrap's kept)
+    # by default (docs/online.md, "Where rich's MPJPE and MCPE excess lived").
+    offset_updates_s: tuple[float, ...] = ()
     # The pose GMM and joint-rotation smoothness of 3 rad/s (offline: 6) keep iSAM2's undamped
     # Gauss-Newton out of the directions keypoints barely see (collars, shoulder twist): without
     # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
@@ -267,6 +285,9 @@ class OnlineOptions:
         if self.camera_priors not in PRIOR_SOURCES:
             raise MocapgraphError(f"camera_priors {self.camera_priors!r}: choose one of {', '.join(PRIOR_SOURCES)}")
         self.navigation.check()
+        times = self.offset_updates_s
+        if not (isinstance(times, (tuple, list)) and all(map(is_positive_number, times))):
+            raise MocapgraphError(f"offset_updates_s: seconds from the stream's start, finite numbers > 0, got {times!r}")
         for name in ("static_refine_s", "shape_refine_s"):
             value = getattr(self, name)
             if value is not None and not is_positive_number(value):
@@ -315,6 +336,7 @@ class OnlineStats:
     solve_seconds: list[float] = field(default_factory=list)  # of the smoother updates alone
     relinearised: list[int] = field(default_factory=list)
     batches: int = 0  # smoother updates in which iSAM2 fell back to a batch step (every factor relinearised)
+    offset_update_seconds: list[float] = field(default_factory=list)  # each measure of the keypoint offsets (offset_updates_s), inside its update's latency
 
     @property
     def dropped(self) -> int:
@@ -330,6 +352,7 @@ class OnlineStats:
             "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "latency_cpu_ms": {q: round(float(np.percentile(cpu, p)), 2) if len(cpu) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
+            "offset_updates_ms": [round(1e3 * x, 1) for x in self.offset_update_seconds],
             "solve_ms_p95": round(float(np.percentile(self.solve_seconds, 95)) * 1e3, 2) if self.solve_seconds else None, "batch_steps": self.batches,
             "updates_per_s": round(len(lat) / self.busy_seconds, 1) if len(lat) else None,
             "updates_per_cpu_s": round(len(lat) / self.busy_cpu_seconds, 1) if len(lat) and self.busy_cpu_seconds else None,
@@ -472,6 +495,12 @@ class OnlineFusion:
         self._keypoint_offsets: dict[str, np.ndarray] = {}  # by detector format, (K, 3): the bootstrap's
         self._last_time = np.full(len(self.rig.cameras), -np.inf)
         self._buffer: list[StreamFrame] = []
+        # while the keypoint offsets are still to be measured again (offset_updates_s): the stream's
+        # frames so far, and the states and camera frames (pose, swap code) that left the window
+        self._offset_times = sorted(options.offset_updates_s) if self.kind == "smartmocap" and options.bootstrap_keypoint_offsets else []
+        self._kept: list[StreamFrame] = []
+        self._left_states: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._left_frames: dict[int, dict[float, tuple[np.ndarray, int]]] = {c: {} for c in range(len(self.rig.cameras))}
         self._bootstrapped = False
         self._seed: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # state → bootstrap (root, pose)
         self._bootstrap_states = 0
@@ -569,6 +598,8 @@ class OnlineFusion:
                 self._bootstrap()
                 return self.state(updated=True)
             return self.state()
+        if self._offset_times:
+            self._kept.append(frame)
         updated = self._observe(c, frame)
         out = self.state(updated=updated)
         seconds, cpu = time.perf_counter() - start, time.thread_time() - cpu_start
@@ -604,11 +635,12 @@ class OnlineFusion:
 
     # -- bootstrap ------------------------------------------------------------------------------
 
-    def _buffered_capture(self) -> Capture:
-        """The buffered stream as a capture of the rig (its frames, detections and sensor logs)."""
+    def _buffered_capture(self, buffer: list[StreamFrame]) -> Capture:
+        """Stream frames (the bootstrap's buffer, ...) as a capture of the rig (its frames,
+        detections and sensor logs; the cameras without a frame left out)."""
         cameras = []
         for c, cam in enumerate(self.rig.cameras):
-            frames = [f for f in self._buffer if f.camera == cam.name]
+            frames = [f for f in buffer if f.camera == cam.name]
             times = np.array(sorted({f.timestamp for f in frames}))
             detectors = {}
             for name, det in cam.detectors.items():
@@ -640,7 +672,7 @@ class OnlineFusion:
         from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
 
         start = time.perf_counter()
-        mini = self._buffered_capture()
+        mini = self._buffered_capture(self._buffer)
         detectors = tuple(dict.fromkeys(f.detector for f in self._buffer))
         o = self.options
         if self.kind == "aircap":
@@ -691,6 +723,8 @@ class OnlineFusion:
         # an interval at a time, the first updates saw a state or two and one or two views,
         # and iSAM2's undamped Gauss-Newton steps threw them metres off (measured).
         buffered, self._buffer = self._buffer, []
+        if self._offset_times:
+            self._kept = list(buffered)
         for frame in buffered:
             i, a = self._grid(frame.timestamp)
             self.open = self._interval(i, a) if self.open is None else max(self.open, self._interval(i, a))
@@ -1104,11 +1138,46 @@ class OnlineFusion:
                     # one) too: the pose its frame was explained with
                     self.filtered_cameras[c][t] = self.smoother.estimate.atPose3(f.key).matrix() if f.key is not None and self.smoother.estimate.exists(f.key) else f.pose
         self._retire(report.left)
+        if self._offset_times and self._left_states and end * self.period >= self._offset_times[0] - _SNAP:
+            self._offset_times.pop(0)
+            self._measure_offsets()
         # the camera frames' current estimates, for the gate and the next frames' starts
         for frames in self._frames.values():
             for f in frames.values():
                 if f.key is not None and self.smoother.estimate.exists(f.key):
                     f.pose = self.smoother.estimate.atPose3(f.key).matrix()
+
+    def _measure_offsets(self) -> None:
+        """The detector formats' keypoint-definition offsets measured again
+        (:func:`~mocapgraph.graphs.keypoint_fit.estimate_offsets`, shrunk towards the format's
+        fitted table or zero, as offline) on the states and camera frames that have left the
+        window, their detections labelled as the loop relabelled them; the factors added from now
+        on use them (those in the window keep the ones they were made with)."""
+        start = time.perf_counter()
+        last = max(self._left_states)
+        frames = [f for f in self._kept if f.timestamp in self._left_frames[self.index[f.camera]] and f.timestamp <= self.t0 + (last + _SNAP) * self.period]
+        mini = self._buffered_capture(frames)
+        model = capture_state_model(mini, "grid", detectors=tuple(dict.fromkeys(f.detector for f in frames)), rate_hz=self.options.rate_hz)
+        first = int(round((model.times[0] - self.t0) / self.period))
+        states = [self._left_states.get(first + i) for i in range(model.num_states)]
+        # a state that never left the window as a state (a solver reset's) has no estimate to measure on
+        model = replace(model, states=[obs if state is not None else [] for obs, state in zip(model.states, states)])
+        roots = np.stack([np.eye(4) if state is None else state[0] for state in states])
+        poses = np.stack([np.zeros((NUM_JOINTS - 1, 3)) if state is None else state[1] for state in states])
+        left = [self._left_frames[self.index[cam.name]] for cam in mini.cameras]
+        cameras = [np.stack([kept[float(t)][0] for t in cam.timestamps]) for kept, cam in zip(left, mini.cameras)]
+        codes = {c: np.array([kept[float(t)][1] for t in cam.timestamps]) for c, (kept, cam) in enumerate(zip(left, mini.cameras))}
+        model = model.relabelled(codes)
+        estimate = Estimate(roots, poses, self.shape, cameras)
+        for fmt in model.formats:
+            fit = estimate_offsets(self.body, model, estimate, fmt, prior_offsets(fmt))
+            self._keypoint_offsets[fmt] = fit.offsets
+            self._caches.pop(fmt, None)
+        if not self._offset_times:
+            self._kept, self._left_states = [], {}
+            self._left_frames = {c: {} for c in self._left_frames}
+        self.stats.offset_update_seconds.append(time.perf_counter() - start)
+        log.info("online: keypoint offsets measured again on %d states (%.2f s of stream) in %.2f s", sum(s is not None for s in states), (last + 1) * self.period, self.stats.offset_update_seconds[-1])
 
     def _shape_prior(self) -> gtsam.PriorFactorVector:
         """The refined shape's prior at the published shape: ``graph.shape_prior_sigma`` along the
@@ -1173,7 +1242,18 @@ class OnlineFusion:
                 self._fixed[c] = self.smoother.estimate.atPose3(key).matrix()
             else:
                 self._fixed[c] = self._pending_values.atPose3(key).matrix()
+            self._settle_static(c, self._fixed[c])
             log.info("online: camera %r held from %.1f s at its refined estimate", self.rig.cameras[c].name, now)
+
+    def _settle_static(self, c: int, pose: np.ndarray) -> None:
+        """A refined static camera is one variable: once it is held (or the stream ends) its smoothed
+        pose, as a state's, is its last estimate, for every frame recorded so far (before, each frame
+        kept the estimate of when it left the window: rich 10 s, the static cameras' smoothed MCPE
+        10.6 / 13.3 / 12.3 -> 8.4 / 11.3 / 9.8 mm on seeds 0-2). The filtered track keeps each frame's
+        pose as estimated at its time."""
+        if self.record:
+            for t in self.smoothed_cameras[c]:
+                self.smoothed_cameras[c][t] = pose
 
     def _restart(self, error: RuntimeError, created: list[tuple[int, np.ndarray, np.ndarray]]) -> UpdateReport:
         """The smoother threw: its window is taken as smoothed as it is, the states this update
@@ -1230,6 +1310,8 @@ class OnlineFusion:
                 self._recent[k] = state
                 if self.record:
                     self.smoothed[k] = (*state, self.shape)
+                if self._offset_times:
+                    self._left_states[k] = state
                 self._seed.pop(k, None)
         for k in [k for k in self._recent if k < self.newest - 8]:
             del self._recent[k]
@@ -1237,20 +1319,24 @@ class OnlineFusion:
         for c, frames in self._frames.items():
             for t in [t for t, f in frames.items() if t < bound or (f.key is not None and left.exists(f.key))]:
                 f = frames.pop(t)
-                if f.key is None and self.record and not f.no_prior:
+                if f.key is not None:
+                    f.pose = (left if left.exists(f.key) else self.smoother.estimate).atPose3(f.key).matrix()
+                if self.record and not f.no_prior:
                     self.smoothed_cameras[c][t] = f.pose
-                elif f.key is not None and self.record:
-                    values = left if left.exists(f.key) else self.smoother.estimate
-                    self.smoothed_cameras[c][t] = values.atPose3(f.key).matrix()
-                self._record_swaps(c, t, f)
+                code = self._record_swaps(c, t, f)
+                if self._offset_times and not f.no_prior:
+                    self._left_frames[c][t] = (f.pose, code)
 
-    def _record_swaps(self, c: int, t: float, f: _Frame) -> None:
+    def _record_swaps(self, c: int, t: float, f: _Frame) -> int:
+        """Count and record the relabelling the frame's detections took; returns its code (0: none)."""
         codes = [int(lab.choice[0]) for lab in f.labellings if len(lab.choice)]
-        if codes:
-            code = max(codes)
-            self.stats.relabelled += int(code > 0)
-            if self.record:
-                self.swaps[c][t] = code
+        if not codes:
+            return 0
+        code = max(codes)
+        self.stats.relabelled += int(code > 0)
+        if self.record:
+            self.swaps[c][t] = code
+        return code
 
     # -- output ---------------------------------------------------------------------------------
 
@@ -1287,6 +1373,9 @@ class OnlineFusion:
         self._flush()
         self.open = None
         self._retire(self.smoother.estimate, everything=True)
+        for c, key in self._static_keys.items():
+            if self.smoother.estimate.exists(key):
+                self._settle_static(c, self.smoother.estimate.atPose3(key).matrix())
 
     def results(self, capture_label: str = "", parameters: dict | None = None) -> tuple[Result, Result]:
         """``(filtered, smoothed)`` as results (after :meth:`finish`, with ``record``)."""
