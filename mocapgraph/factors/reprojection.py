@@ -20,6 +20,11 @@ The factor carries a unit noise model of that dimension and whitens itself: a GT
 noise model on the whole residual vector would saturate every factor together (see the GTSAM
 performance notes), so the kernel has to be per keypoint, inside.
 
+An evaluation is one native call on the shape's prepared table (``mocapgraph._native.Body``,
+built once per shape by the :class:`ShapeTableCache`): labelling choice, usable rows and focal
+columns included; Python only reads the variables and slices the Jacobian per key
+(``mocapgraph bench factors`` times it).
+
 - ``noise_px``: standard deviation of a good detection, in pixels. It sets the weight of the
   reprojection terms against the priors.
 - ``weights (C, K)``: per-observation multipliers of the residual, typically the detector's
