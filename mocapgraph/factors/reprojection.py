@@ -250,9 +250,10 @@ class _ReprojectionError:
         self.interpolate = native_module().interpolate_pose  # interpolate_root without its wrapper: ~1 µs a call
         self.labelling = labelling
         C = len(cameras)
-        # read from the labelling at each call (a solver may change them), these stand in without one
-        self.as_detected = np.zeros((0, observed.shape[1]), dtype=np.int64)
-        self.no_hypotheses = np.zeros((C, 0), dtype=bool)
+        # the hypotheses are read from the labelling at each call (a solver may change them);
+        # without one, none (the points as detected)
+        self.no_hypotheses = np.zeros((0, observed.shape[1]), dtype=np.int64)
+        self.none_allowed = np.zeros((C, 0), dtype=bool)
         self.all_allowed = None if labelling is None else np.ones((C, len(labelling.permutations)), dtype=bool)
         self.focals = focals  # [(camera index, key)]: cameras whose focal length is a variable
         # cameras may share a focal length: one Jacobian column per distinct key, in key order
@@ -283,11 +284,11 @@ class _ReprojectionError:
                 intrinsics[c, :2] *= np.exp(values.atVector(key)[0])
         labelling = self.labelling
         if labelling is None:
-            hypotheses, allowed, cost, relabel = self.as_detected, self.no_hypotheses, 0.0, False
+            hypotheses, allowed, cost, relabel = self.no_hypotheses, self.none_allowed, 0.0, False
         else:
             hypotheses = np.ascontiguousarray(labelling.permutations, dtype=np.int64)
             allowed = self.all_allowed if labelling.allowed is None else np.ascontiguousarray(labelling.allowed, dtype=bool)
-            # the points stay as detected under L2 (see Labelling)
+            # the kernel keeps the points as detected under L2 all the same (see Labelling)
             cost, relabel = labelling.cost, labelling.enabled
         try:
             residual, jac, choice = body.reproject_factor(
