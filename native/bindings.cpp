@@ -208,9 +208,7 @@ mocapgraph::BodyTableView table_view(const InI& parents, const InF& offsets, con
   return v;
 }
 
-nb::tuple fk(const InI& parents, const InF& offsets, const InF& d_offsets, const InF& weights,
-             const InF& markers, const InF& d_markers, const InF& root, const InF& pose, bool jacobians) {
-  const mocapgraph::BodyKernel body(table_view(parents, offsets, d_offsets, weights, markers, d_markers));
+nb::tuple pose_frames(const mocapgraph::BodyKernel& body, const InF& root, const InF& pose, bool jacobians) {
   const std::size_t J = body.num_joints(), K = body.num_keypoints(), P = body.num_params();
   check_shape(root, "root", {kAny, 4, 4});
   const std::size_t T = root.shape(0);
@@ -237,11 +235,17 @@ nb::tuple fk(const InI& parents, const InF& offsets, const InF& d_offsets, const
                         jacobians ? d_keypoints->to_numpy() : nb::none());
 }
 
-nb::tuple reproject(const InI& parents, const InF& offsets, const InF& d_offsets, const InF& weights,
-                    const InF& markers, const InF& d_markers, const InF& root, const InF& pose,
-                    const InF& cameras, const InF& intrinsics, const InF& observed, const InF& obs_weights,
-                    double gm_sigma_px, double min_depth, bool jacobians) {
+nb::tuple fk(const InI& parents, const InF& offsets, const InF& d_offsets, const InF& weights,
+             const InF& markers, const InF& d_markers, const InF& root, const InF& pose, bool jacobians) {
   const mocapgraph::BodyKernel body(table_view(parents, offsets, d_offsets, weights, markers, d_markers));
+  return pose_frames(body, root, pose, jacobians);
+}
+
+// Checks one frame's reprojection inputs against the body (K keypoints, J joints) and returns
+// the kernel's view of them; C is the number of cameras.
+mocapgraph::ReprojectionInputs frame_inputs(const mocapgraph::BodyKernel& body, const InF& root, const InF& pose,
+                                            const InF& cameras, const InF& intrinsics, const InF& observed,
+                                            const InF& obs_weights, double gm_sigma_px, double min_depth) {
   const std::int64_t J = static_cast<std::int64_t>(body.num_joints());
   const std::int64_t K = static_cast<std::int64_t>(body.num_keypoints());
   check_shape(root, "root", {4, 4});
@@ -270,14 +274,6 @@ nb::tuple reproject(const InI& parents, const InF& offsets, const InF& d_offsets
     if (!(obs_weights.data()[i] >= 0.0) || std::isinf(obs_weights.data()[i]))
       throw std::invalid_argument("obs_weights: must be finite and >= 0 (camera " + std::to_string(i / K) +
                                   ", keypoint " + std::to_string(i % K) + ")");
-
-  const std::size_t rows = static_cast<std::size_t>(2 * C * K);
-  const std::size_t cols = body.num_params() + 6 * static_cast<std::size_t>(C);
-  Buffer<double> residual({rows});
-  Buffer<bool> valid({static_cast<std::size_t>(C), static_cast<std::size_t>(K)});
-  std::unique_ptr<Buffer<double>> jacobian;
-  if (jacobians) jacobian = std::make_unique<Buffer<double>>(std::vector<std::size_t>{rows, cols});
-
   mocapgraph::ReprojectionInputs in;
   in.root = root.data();
   in.pose = pose.data();
@@ -288,6 +284,24 @@ nb::tuple reproject(const InI& parents, const InF& offsets, const InF& d_offsets
   in.obs_weights = obs_weights.data();
   in.gm_sigma_px = gm_sigma_px;
   in.min_depth = min_depth;
+  return in;
+}
+
+nb::tuple reproject(const InI& parents, const InF& offsets, const InF& d_offsets, const InF& weights,
+                    const InF& markers, const InF& d_markers, const InF& root, const InF& pose,
+                    const InF& cameras, const InF& intrinsics, const InF& observed, const InF& obs_weights,
+                    double gm_sigma_px, double min_depth, bool jacobians) {
+  const mocapgraph::BodyKernel body(table_view(parents, offsets, d_offsets, weights, markers, d_markers));
+  const mocapgraph::ReprojectionInputs in =
+      frame_inputs(body, root, pose, cameras, intrinsics, observed, obs_weights, gm_sigma_px, min_depth);
+  const std::size_t C = in.num_cameras, K = body.num_keypoints();
+  const std::size_t rows = 2 * C * K;
+  const std::size_t cols = body.num_params() + 6 * C;
+  Buffer<double> residual({rows});
+  Buffer<bool> valid({C, K});
+  std::unique_ptr<Buffer<double>> jacobian;
+  if (jacobians) jacobian = std::make_unique<Buffer<double>>(std::vector<std::size_t>{rows, cols});
+
   mocapgraph::ReprojectionOutputs out;
   out.residual = residual.get();
   out.jacobian = jacobians ? jacobian->get() : nullptr;
@@ -298,6 +312,81 @@ nb::tuple reproject(const InI& parents, const InF& offsets, const InF& d_offsets
   }
   return nb::make_tuple(residual.to_numpy(), jacobians ? jacobian->to_numpy() : nb::none(), valid.to_numpy());
 }
+
+using InB = nb::ndarray<const bool, nb::c_contig, nb::device::cpu>;
+
+// A body table checked and prepared once (the kernel's sparsity scan), for the many calls of
+// one shape: the reprojection factor's evaluations and the per-state kinematics of the body
+// factors. It keeps its arrays alive.
+class Body {
+ public:
+  Body(const InI& parents, const InF& offsets, const InF& d_offsets, const InF& weights, const InF& markers,
+       const InF& d_markers)
+      : parents_(parents), offsets_(offsets), d_offsets_(d_offsets), weights_(weights), markers_(markers),
+        d_markers_(d_markers),
+        kernel_(table_view(parents_, offsets_, d_offsets_, weights_, markers_, d_markers_)) {}
+
+  nb::tuple fk(const InF& root, const InF& pose, bool jacobians) const {
+    return pose_frames(kernel_, root, pose, jacobians);
+  }
+
+  nb::tuple reproject_factor(const InF& root, const InF& pose, const InF& cameras, const InF& intrinsics,
+                             const InF& observed, const InF& obs_weights, const InF& mapped, double gm_sigma_px,
+                             double min_depth, bool jacobians, const InI& permutations, const InB& allowed,
+                             double relabel_cost, bool relabel, bool cost_row, const InI& focal_columns,
+                             std::size_t num_focal) const {
+    mocapgraph::FactorInputs in;
+    in.frame = frame_inputs(kernel_, root, pose, cameras, intrinsics, observed, obs_weights, gm_sigma_px, min_depth);
+    const std::size_t C = in.frame.num_cameras, K = kernel_.num_keypoints();
+    const std::int64_t Ci = static_cast<std::int64_t>(C), Ki = static_cast<std::int64_t>(K);
+    check_shape(mapped, "mapped", {Ki});
+    for (std::size_t k = 0; k < K; ++k)
+      if (!std::isfinite(mapped.data()[k])) throw std::invalid_argument("mapped: must be finite");
+    if (permutations.ndim() != 2 || (permutations.shape(0) > 0 && permutations.shape(1) != K))
+      throw std::invalid_argument("permutations: expected shape (H, " + std::to_string(K) + ")");
+    const std::size_t H = permutations.shape(0);
+    for (std::size_t i = 0; i < H * K; ++i)
+      if (permutations.data()[i] < 0 || permutations.data()[i] >= Ki)
+        throw std::invalid_argument("permutations: entries must lie in [0, " + std::to_string(K) + ")");
+    check_shape(allowed, "allowed", {Ci, static_cast<std::int64_t>(H)});
+    if (!(relabel_cost >= 0.0) || !std::isfinite(relabel_cost))
+      throw std::invalid_argument("relabel_cost: must be a finite number >= 0");
+    check_shape(focal_columns, "focal_columns", {Ci});
+    for (std::size_t c = 0; c < C; ++c)
+      if (focal_columns.data()[c] < -1 || focal_columns.data()[c] >= static_cast<std::int64_t>(num_focal))
+        throw std::invalid_argument("focal_columns: entries must lie in [-1, " + std::to_string(num_focal) + ")");
+    in.mapped = mapped.data();
+    in.num_hypotheses = H;
+    in.permutations = permutations.data();
+    in.allowed = allowed.data();
+    in.relabel_cost = relabel_cost;
+    in.relabel = relabel;
+    in.cost_row = cost_row;
+    in.focal_columns = focal_columns.data();
+    in.num_focal = num_focal;
+
+    const std::size_t rows = mocapgraph::factor_rows(K, in);
+    const std::size_t cols = kernel_.num_params() + 6 * C + num_focal;
+    Buffer<double> residual({rows});
+    Buffer<std::int64_t> choice({C});
+    std::unique_ptr<Buffer<double>> jacobian;
+    if (jacobians) jacobian = std::make_unique<Buffer<double>>(std::vector<std::size_t>{rows, cols});
+    mocapgraph::FactorOutputs out;
+    out.residual = residual.get();
+    out.jacobian = jacobians ? jacobian->get() : nullptr;
+    out.choice = choice.get();
+    mocapgraph::reproject_factor(kernel_, in, out);
+    return nb::make_tuple(residual.to_numpy(), jacobians ? jacobian->to_numpy() : nb::none(), choice.to_numpy());
+  }
+
+  std::size_t num_keypoints() const { return kernel_.num_keypoints(); }
+  std::size_t num_params() const { return kernel_.num_params(); }
+
+ private:
+  InI parents_;
+  InF offsets_, d_offsets_, weights_, markers_, d_markers_;
+  mocapgraph::BodyKernel kernel_;  // views the arrays above: declared after them
+};
 
 nb::tuple interpolate_pose(const InF& first, const InF& second, double fraction) {
   check_shape(first, "first", {4, 4});
@@ -330,6 +419,27 @@ NB_MODULE(_native, m) {
         "intrinsics (C, 4) fx, fy, cx, cy, observed (C, K, 2) pixels (NaN = missing), obs_weights (C, K).\n"
         "Returns (residual (2 C K,), jacobian (2 C K, P + 6 C) or None, valid (C, K) bool);\n"
         "see mocapgraph.factors.reprojection_kernel for the layout.");
+
+  nb::class_<Body>(m, "Body",
+                   "A body table (the six arrays of mocapgraph.body.native.table_arrays) checked and\n"
+                   "prepared once for many evaluations; it keeps the arrays alive.")
+      .def(nb::init<const InI&, const InF&, const InF&, const InF&, const InF&, const InF&>(), "parents"_a,
+           "offsets"_a, "d_offsets"_a, "weights"_a, "markers"_a, "d_markers"_a)
+      .def_prop_ro("num_keypoints", &Body::num_keypoints)
+      .def_prop_ro("num_params", &Body::num_params, "P = 6 + 3 (J-1) + S body Jacobian columns")
+      .def("fk", &Body::fk, "root"_a, "pose"_a, "jacobians"_a, "As the module's fk, on this body.")
+      .def("reproject_factor", &Body::reproject_factor, "root"_a, "pose"_a, "cameras"_a, "intrinsics"_a,
+           "observed"_a, "obs_weights"_a, "mapped"_a, "gm_sigma_px"_a, "min_depth"_a, "jacobians"_a,
+           "permutations"_a, "allowed"_a, "relabel_cost"_a, "relabel"_a, "cost_row"_a, "focal_columns"_a,
+           "num_focal"_a,
+           "The reprojection factor's residual in one pass: per camera the labelling hypothesis of\n"
+           "least robust cost (when relabel, under a finite gm_sigma_px), then two rows per usable\n"
+           "detection (finite, obs_weights > 0), camera-major in body point order, and with cost_row the\n"
+           "relabellings' cost. Body point k of camera c reads detection permutations[h, k] with weight\n"
+           "obs_weights[c, permutations[h, k]] * mapped[k]. permutations (H, K) int64 (H = 0: as detected),\n"
+           "allowed (C, H) bool, focal_columns (C,) int64 (-1: none).\n"
+           "Returns (residual (R,), jacobian (R, P + 6 C + num_focal) or None, choice (C,) int64);\n"
+           "column P + 6 C + focal_columns[c] is dr/ds of camera c's focal log scale s.");
 
   m.def("interpolate_pose", &interpolate_pose, "first"_a, "second"_a, "fraction"_a,
         "The pose a fraction of the way from first to second (4, 4) world_T_root: slerp of the\n"

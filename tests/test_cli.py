@@ -39,6 +39,17 @@ def test_bench_body_json_contract(capsys):
     assert result["ratio"] == pytest.approx(result["native_frames_per_s"] / result["numpy_frames_per_s"], rel=0.01)
 
 
+def test_bench_factors_json_contract(capsys):
+    """Every camera count's timings, and its rows: 16 of coco17's 17 points detected per camera."""
+    assert main(["bench", "factors", "--json", "--seconds", "0.01"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for cameras in (1, 4, 8):
+        entry = result[f"C={cameras}"]
+        assert entry["rows"] == 2 * 16 * cameras
+        for key in ("error_us", "linearize_us", "labelled_error_us", "labelled_linearize_us", "kernel_us", "kernel_jacobians_us"):
+            assert entry[key] > 0
+
+
 def test_smpl_without_a_model_file_is_one_clear_error(capsys):
     assert main(["body", "info", "--backend", "smpl"]) == 2
     err = capsys.readouterr().err

@@ -357,6 +357,87 @@ def test_labelling_is_the_cheapest_hypothesis(scene):
     assert error == pytest.approx(best, rel=1e-9)
 
 
+def numpy_factor(body, fmt, values, cameras, camera_keys, intrinsics, observed, weights, noise_px, sigma, permutations, cost, allowed):
+    """The labelled reprojection factor written with the numpy reference kernel, camera by
+    camera: each hypothesis' robust cost ``½|r|²`` (plus ``cost`` if not the identity, ``inf``
+    if not allowed), the cheapest's residual on the usable rows, the cost row. Returns the
+    residual, the Jacobian in key order and the choice."""
+    table = body.table(values.atVector(shape_key()), keypoints=fmt)
+    root, pose = values.atPose3(root_key(0)).matrix(), values.atVector(pose_key(0)).reshape(21, 3)
+    P = 6 + 63 + body.shape_dim
+    residual, jacobian, choice = [], [], []
+    refined = [c for c, key in enumerate(camera_keys) if key is not None]
+    for c, key in enumerate(camera_keys):
+        camera = cameras[c] if key is None else values.atPose3(key).matrix()
+        runs = []
+        for h, perm in enumerate(permutations):
+            run = reproject_numpy(table, root, pose, camera[None], intrinsics[c : c + 1], observed[c : c + 1, perm], weights[c : c + 1, perm] / noise_px, sigma)
+            runs.append((0.5 * run.residual @ run.residual + (cost if h else 0.0) if allowed[c, h] else np.inf, run))
+        h = int(np.argmin([cost_h for cost_h, _ in runs])) if np.isfinite(sigma) else 0
+        run, perm = runs[h][1], permutations[h]
+        usable = np.repeat((np.isfinite(observed[c, perm]).all(-1) & (weights[c, perm] > 0)), 2)
+        block = np.zeros((usable.sum(), P + 6 * len(refined)))
+        block[:, :P] = run.jacobian[usable, :P]
+        if key is not None:
+            j = P + 6 * refined.index(c)
+            block[:, j : j + 6] = run.jacobian[usable, P : P + 6]
+        residual.append(run.residual[usable])
+        jacobian.append(block)
+        choice.append(h)
+    residual.append([math.sqrt(2 * cost * np.count_nonzero(choice))])
+    jacobian.append(np.zeros((1, jacobian[0].shape[1])))
+    return np.concatenate(residual), np.concatenate(jacobian), choice
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_reprojection_equals_the_numpy_reference(body, seed):
+    """On random states, detections (swapped, missing, zero-weight, outlying), cameras (fixed or
+    refined) and allowed hypotheses, in L2 and Geman-McClure: the factor's residual, Jacobian and
+    labelling choice equal the numpy reference kernel's, hypothesis by hypothesis
+    (:func:`numpy_factor`)."""
+    rng = np.random.default_rng(seed)
+    fmt = ("coco17", "blazepose33")[seed % 2]
+    names = get_format(fmt).names
+    C, K = 1 + seed % 4, len(names)
+    root, pose, shape = standing_root(rng), rng.normal(scale=0.3, size=63), random_shape(body, rng)
+    cameras = np.stack([look_at_body(a) for a in rng.uniform(0, 2 * np.pi, size=C)])
+    intrinsics = np.column_stack([rng.uniform(800, 1200, size=(C, 2)), np.tile([640.0, 360.0], (C, 1))])
+    truth = body.forward(shape, root[None], pose.reshape(1, 21, 3), keypoints=fmt).keypoints[0]
+    p = np.einsum("cyx,cky->ckx", cameras[:, :3, :3], truth[None] - cameras[:, None, :3, 3])
+    observed = p[..., :2] / p[..., 2:] * intrinsics[:, None, :2] + intrinsics[:, None, 2:] + rng.normal(scale=3.0, size=(C, K, 2))
+    observed[rng.uniform(size=(C, K)) < 0.1] += 70.0
+    observed[rng.uniform(size=(C, K)) < 0.1] = np.nan
+    permutations = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+    for c in range(C):
+        observed[c] = observed[c, permutations[rng.integers(0, 4)]]
+    weights = rng.uniform(0.2, 1.0, size=(C, K)) * (rng.uniform(size=(C, K)) > 0.05)
+    camera_keys = [camera_key(c, 0) if rng.uniform() < 0.7 else None for c in range(C)]
+    allowed = rng.uniform(size=(C, 4)) < 0.8
+    allowed[:, 0] = True
+    cost, noise_px = 0.5 * rng.uniform(0, 3) ** 2, rng.uniform(0.5, 3.0)
+    values = gtsam.Values()
+    values.insert(root_key(0), gtsam.Pose3(root).retract(rng.normal(scale=0.03, size=6)))
+    values.insert(pose_key(0), pose + rng.normal(scale=0.05, size=63))
+    values.insert(shape_key(), shape)
+    for c, key in enumerate(camera_keys):
+        if key is not None:
+            values.insert(key, gtsam.Pose3(cameras[c]).retract(rng.normal(scale=0.01, size=6)))
+    scale = RobustScale()
+    labelling = Labelling(permutations, cost, allowed=allowed)
+    factor = reprojection_factor(
+        body, ShapeTableCache(body, fmt), root_key(0), pose_key(0), shape_key(), camera_keys, [cameras[c] if key is None else None for c, key in enumerate(camera_keys)],
+        intrinsics, observed, weights, fmt, scale, noise_px=noise_px, labelling=labelling,
+    )  # fmt: skip
+    for sigma in (math.inf, 10.0, 40.0):
+        scale.sigma_px = sigma
+        want_residual, want_jacobian, want_choice = numpy_factor(body, fmt, values, cameras, camera_keys, intrinsics, observed, weights, noise_px, sigma, permutations, cost, allowed)
+        assert factor.error(values) == pytest.approx(0.5 * want_residual @ want_residual, rel=1e-12)
+        assert labelling.choice.tolist() == want_choice
+        A, b = factor.linearize(values).jacobian()
+        assert max_rel_diff(-b, want_residual) < 1e-12
+        assert max_rel_diff(A, want_jacobian) < 1e-10
+
+
 def test_labelling_is_checked(scene):
     for bad in (PERMUTATIONS[::-1], PERMUTATIONS[:, :5], PERMUTATIONS.astype(float), np.stack([PERMUTATIONS[0], np.zeros(17, int)])):
         with pytest.raises(MocapgraphError, match="labelling.permutations"):

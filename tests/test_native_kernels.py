@@ -471,3 +471,66 @@ def test_native_reproject_rejects_bad_shapes_with_value_error():
         fn(*table_arrays(scene.table), *dict(good, obs_weights=-scene.obs_weights).values(), 10.0, 0.05, True)
     with pytest.raises(ValueError, match="min_depth"):
         fn(*table_arrays(scene.table), *good.values(), 10.0, -1.0, True)
+
+
+# ---------------------------------------------------------------------------------------------
+# The prepared body (mocapgraph._native.Body)
+
+
+def test_prepared_body_poses_as_the_table_functions():
+    """``Body(*table_arrays(table)).fk`` returns exactly what ``fk`` on the arrays returns."""
+    table = make_table("k23_s6")
+    rng = np.random.default_rng(11)
+    root, pose = random_root(rng, 3), make_pose("random", rng, 3)
+    body = native_module().Body(*table_arrays(table))
+    assert body.num_keypoints == table.num_keypoints and body.num_params == 6 + 3 * (NUM_JOINTS - 1) + table.shape_dim
+    for jacobians in (False, True):
+        want = native_module().fk(*table_arrays(table), root, pose, jacobians)
+        got = body.fk(root, pose, jacobians)
+        for w, g in zip(want, got):
+            assert (w is None and g is None) or np.array_equal(w, g)
+
+
+def factor_args(scene: Scene) -> dict:
+    C, K = scene.obs_weights.shape
+    return dict(
+        root=scene.root, pose=scene.pose, cameras=scene.cameras, intrinsics=scene.intrinsics, observed=scene.observed,
+        obs_weights=scene.obs_weights, mapped=np.ones(K), gm_sigma_px=10.0, min_depth=0.05, jacobians=True,
+        permutations=np.stack([np.arange(K), np.arange(K)[::-1]]), allowed=np.ones((C, 2), dtype=bool), relabel_cost=1.0,
+        relabel=True, cost_row=True, focal_columns=np.full(C, -1), num_focal=0,
+    )  # fmt: skip
+
+
+def test_prepared_body_factor_rows_are_the_kernels_usable_rows():
+    """As detected (one hypothesis, no relabelling), the factor entry's rows are ``reproject``'s
+    rows of finite, weighted detections, and its last row the relabelling cost (0 here)."""
+    scene = make_scene(seed=12)
+    scene.observed[1, 2] = np.nan
+    scene.obs_weights[2, 5] = 0.0
+    body = native_module().Body(*table_arrays(scene.table))
+    args = dict(factor_args(scene), permutations=np.arange(scene.obs_weights.shape[1])[None], allowed=np.ones((3, 1), dtype=bool))
+    residual, jacobian, choice = body.reproject_factor(**args)
+    full = reproject(*scene.args(), 10.0)
+    usable = np.repeat((np.isfinite(scene.observed).all(-1) & (scene.obs_weights > 0)).ravel(), 2)
+    assert choice.tolist() == [0, 0, 0]
+    assert np.array_equal(residual, np.append(full.residual[usable], 0.0))
+    assert np.array_equal(jacobian[:-1], full.jacobian[usable]) and not jacobian[-1].any()
+
+
+@pytest.mark.parametrize(
+    "name, bad, match",
+    [
+        ("mapped", np.ones(3), "mapped"),
+        ("permutations", np.full((2, 10), 10), "permutations"),
+        ("permutations", np.zeros((2, 9), dtype=np.int64), "permutations"),
+        ("allowed", np.ones((3, 3), dtype=bool), "allowed"),
+        ("relabel_cost", -1.0, "relabel_cost"),
+        ("focal_columns", np.zeros(3, dtype=np.int64), "focal_columns"),
+        ("cameras", np.eye(4)[None].repeat(3, 0) * 2, "cameras"),
+    ],
+)
+def test_prepared_body_factor_rejects_bad_input_naming_it(name, bad, match):
+    scene = make_scene(seed=13)
+    body = native_module().Body(*table_arrays(scene.table))
+    with pytest.raises(ValueError, match=match):
+        body.reproject_factor(**dict(factor_args(scene), **{name: bad}))

@@ -46,6 +46,10 @@ BENCHES = {
         "mocapgraph.benchmarks.real:fit_clip_offsets", {"clip": ("the clip's folder (default tests/data/real)", {"type": Path, "metavar": "DIR"}),
          "person": ("which person", {}), "rounds": ("offset rounds", {}), "free": ("comma-separated cameras not held at the lab's pose", {})},
     ),
+    "factors": (
+        "the reprojection factor's microseconds per error call and per linearisation, for 1, 4 and 8 cameras, with and without labelling",
+        "mocapgraph.benchmarks.factors:bench_factors", {"min_seconds": ("time spent per figure, seconds", {"flag": "--seconds"})},
+    ),
     "airpose": ("AirPose vs AirPose+ on an airpose capture, for every initialiser (regressor ablation, PnP)", "mocapgraph.benchmarks.airpose:bench_airpose", {}),
     "priors": (
         "the shipped learned priors on held-out CMU subjects and on aircap",

@@ -20,6 +20,11 @@ The factor carries a unit noise model of that dimension and whitens itself: a GT
 noise model on the whole residual vector would saturate every factor together (see the GTSAM
 performance notes), so the kernel has to be per keypoint, inside.
 
+An evaluation is one native call on the shape's prepared table (``mocapgraph._native.Body``,
+built once per shape by the :class:`ShapeTableCache`): labelling choice, usable rows and focal
+columns included; Python only reads the variables and slices the Jacobian per key
+(``mocapgraph bench factors`` times it).
+
 - ``noise_px``: standard deviation of a good detection, in pixels. It sets the weight of the
   reprojection terms against the priors.
 - ``weights (C, K)``: per-observation multipliers of the residual, typically the detector's
@@ -64,6 +69,8 @@ class _TableEntry:
     arrays: tuple[np.ndarray, ...]
     all_mapped: bool
     carriers: np.ndarray  # (K,) the joint carrying each point's offset
+    native: object  # the table prepared once for the native kernels (mocapgraph._native.Body)
+    mapped: np.ndarray  # (K,) float64, 1 where the body has the point
 
 
 class ShapeTableCache:
@@ -98,7 +105,6 @@ class ShapeTableCache:
         self.size = int(size)
         self.builds = 0
         self._entries: list[_TableEntry] = []
-        self._fk = None  # the native forward kinematics, looked up on first use
 
     @property
     def num_keypoints(self) -> int:
@@ -121,7 +127,8 @@ class ShapeTableCache:
         if self.offset_basis is not None:
             table = offset_shape_table(table, self.offset_basis)
         self.builds += 1
-        e = _TableEntry(key, table, table_arrays(table), bool(np.all(table.mapped)), carrier_joints(table))
+        arrays = table_arrays(table)
+        e = _TableEntry(key, table, arrays, bool(np.all(table.mapped)), carrier_joints(table), native_module().Body(*arrays), table.mapped.astype(float))
         self._entries.insert(0, e)
         del self._entries[self.size :]
         return e
@@ -151,11 +158,7 @@ class ShapeTableCache:
         ``(22, 3)`` (world, metres) and, when ``jacobians``, their derivatives ``(22, 3, 6 + 63 + S)``
         with respect to the root's Pose3 tangent (rotation first), the joint rotations and the shape.
         """
-        if self._fk is None:
-            self._fk = native_module().fk
-        joints, _, _, d_joints, _ = self._fk(
-            *self.entry(shape).arrays, np.ascontiguousarray(root)[None], np.asarray(pose).reshape(1, NUM_JOINTS - 1, 3), jacobians
-        )
+        joints, _, _, d_joints, _ = self.entry(shape).native.fk(root[None], np.asarray(pose).reshape(1, NUM_JOINTS - 1, 3), jacobians)
         return joints[0], (d_joints[0] if jacobians else None)
 
 
@@ -223,11 +226,13 @@ class Labelling:
 
 
 class _ReprojectionError:
-    """The CustomFactor callback: reads the variables, runs the native kernel, slices the Jacobian."""
+    """The CustomFactor callback: reads the variables and hands them to the native factor
+    kernel (``mocapgraph._native.Body.reproject_factor``), which picks each camera's labelling,
+    keeps only the usable rows and adds the focal columns in one pass; then slices the Jacobian.
+    Everything that does not change between evaluations is prepared here once."""
 
-    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, rows, labelling, focals, offset_key):
+    def __init__(self, cache, states, fraction, shape_key, fixed_shape, refined, cameras, intrinsics, observed, weights, scale, min_depth, labelling, focals, offset_key):
         self.cache = cache
-        self.rows = rows  # the kernel's rows that are kept (usable observations), or None for all
         self.states = states  # [(root key, pose key)]: one state, or two interpolated by `fraction`
         self.fraction = fraction
         self.shape_key = shape_key
@@ -242,70 +247,29 @@ class _ReprojectionError:
         self.weights = weights
         self.scale = scale
         self.min_depth = min_depth
-        self.kernel = native_module().reproject
         self.interpolate = native_module().interpolate_pose  # interpolate_root without its wrapper: ~1 µs a call
         self.labelling = labelling
+        C = len(cameras)
+        # the hypotheses are read from the labelling at each call (a solver may change them);
+        # without one, none (the points as detected)
+        self.no_hypotheses = np.zeros((0, observed.shape[1]), dtype=np.int64)
+        self.none_allowed = np.zeros((C, 0), dtype=bool)
+        self.all_allowed = None if labelling is None else np.ones((C, len(labelling.permutations)), dtype=bool)
         self.focals = focals  # [(camera index, key)]: cameras whose focal length is a variable
         # cameras may share a focal length: one Jacobian column per distinct key, in key order
         self.focal_keys = list(dict.fromkeys(k for _, k in focals))
-        self.focal_columns = [self.focal_keys.index(k) for _, k in focals]
+        self.focal_columns = np.full(C, -1, dtype=np.int64)  # per camera, its focal key's column
+        for c, k in focals:
+            self.focal_columns[c] = self.focal_keys.index(k)
         self.offset_key = offset_key  # the format's keypoint-offset parameters (Vector(D)), or None
-
-    def _predicted(self, entry, arrays, args) -> tuple[np.ndarray, np.ndarray]:
-        """``(C, K, 2)`` the body's points projected at the current values and ``(C, K)`` where
-        that is valid (mapped, in front): one kernel pass without Jacobians."""
-        C, K = self.observed.shape[:2]
-        # observed 0 and weight 1: the residual is the predicted pixel itself, where it is valid
-        ones = np.ascontiguousarray(np.broadcast_to(entry.table.mapped[None].astype(float), (C, K)))
-        predicted, _, in_front = self.kernel(*arrays, *args, np.zeros((C, K, 2)), ones, np.inf, self.min_depth, False)
-        return predicted.reshape(C, K, 2), in_front
-
-    def _choose(self, entry, predicted, in_front) -> np.ndarray:
-        """Per camera, the labelling whose robust cost is lowest at the ``predicted`` pixels (ties:
-        as detected), the cost of a relabelling included; every hypothesis scored in numpy."""
-        sigma2 = self.scale.sigma_px**2
-        costs = np.empty((len(self.labelling.permutations), len(self.cameras)))
-        for h, perm in enumerate(self.labelling.permutations):
-            e = predicted - self.observed[:, perm]
-            e2 = np.sum(e * e, axis=-1)
-            rho = sigma2 * e2 / (sigma2 + e2)  # only under a robust scale (see __call__)
-            w = self.weights[:, perm] * entry.table.mapped[None]
-            ok = in_front & np.isfinite(e2) & (w > 0)
-            costs[h] = 0.5 * np.sum(np.where(ok, w * w * np.where(ok, rho, 0.0), 0.0), axis=1)
-        costs[1:] += self.labelling.cost
-        if self.labelling.allowed is not None:
-            costs[~np.asarray(self.labelling.allowed).T] = np.inf
-        return np.argmin(costs, axis=0)
-
-    def _focal_jacobian(self, intrinsics, predicted, in_front, observed, weights) -> np.ndarray:
-        """``(2CK, F)`` the residual's derivative by each variable focal length's log scale ``s``
-        (``fx, fy = e^s (fx0, fy0)``): ``∂(u - cx)/∂s = u - cx``, through the robust weight
-        ``∂r/∂e = w s_gm (I - e eᵀ/(σ² + |e|²))`` of the kernel (module docstring)."""
-        C, K = observed.shape[:2]
-        valid = in_front & np.isfinite(observed).all(-1) & (weights > 0)
-        e = np.where(valid[..., None], predicted - np.nan_to_num(observed), 0.0)
-        w = np.where(valid, weights, 0.0)
-        sigma = self.scale.sigma_px
-        if np.isfinite(sigma) and sigma > 0:
-            denom = sigma**2 + np.sum(e * e, axis=-1)
-            drde = (w * sigma / np.sqrt(denom))[..., None, None] * (np.eye(2) - e[..., :, None] * e[..., None, :] / denom[..., None, None])
-        else:
-            drde = w[..., None, None] * np.eye(2)
-        centred = predicted - intrinsics[:, None, 2:]  # (u - cx, v - cy)
-        per_camera = np.einsum("ckij,ckj->cki", drde, centred).reshape(C, 2 * K)
-        out = np.zeros((C, 2 * K, len(self.focal_keys)))
-        for (c, _), i in zip(self.focals, self.focal_columns):
-            out[c, :, i] = per_camera[c]
-        return out.reshape(2 * C * K, len(self.focal_keys))
 
     def __call__(self, this, values: gtsam.Values, H) -> np.ndarray:
         shape = self.fixed_shape if self.shape_key is None else values.atVector(self.shape_key)
         entry = self.cache.entry(shape)
-        arrays = entry.arrays if self.offset_key is None else self.cache.arrays(entry, values.atVector(self.offset_key))
+        body = entry.native if self.offset_key is None else native_module().Body(*self.cache.arrays(entry, values.atVector(self.offset_key)))
         cameras = self.cameras
         for c, key in self.refined:
             cameras[c] = values.atPose3(key).matrix()
-        weights = self.weights if entry.all_mapped else self.weights * entry.table.mapped[None]
         (root_key, pose_key), a = self.states[0], self.fraction
         if len(self.states) == 1:
             root, pose = values.atPose3(root_key).matrix(), values.atVector(pose_key)
@@ -318,40 +282,25 @@ class _ReprojectionError:
             intrinsics = intrinsics.copy()
             for c, key in self.focals:
                 intrinsics[c, :2] *= np.exp(values.atVector(key)[0])
-        args = (root, pose.reshape(NUM_JOINTS - 1, 3), cameras, intrinsics)
-        observed, rows = self.observed, self.rows
-        relabel = self.labelling is not None and self.labelling.enabled and np.isfinite(self.scale.sigma_px)
+        labelling = self.labelling
+        if labelling is None:
+            hypotheses, allowed, cost, relabel = self.no_hypotheses, self.none_allowed, 0.0, False
+        else:
+            hypotheses = np.ascontiguousarray(labelling.permutations, dtype=np.int64)
+            allowed = self.all_allowed if labelling.allowed is None else np.ascontiguousarray(labelling.allowed, dtype=bool)
+            # the kernel keeps the points as detected under L2 all the same (see Labelling)
+            cost, relabel = labelling.cost, labelling.enabled
         try:
-            # the predicted pixels, once, for whichever of the labelling and the focal Jacobian needs them
-            predicted = self._predicted(entry, arrays, args) if relabel or (H is not None and self.focals) else None
-            if self.labelling is not None:
-                # the body's point k is compared with the detection labelled perm[k]; whether the
-                # body has a point k at all (mapped) goes with k, not with the detection
-                choice = self._choose(entry, *predicted) if relabel else np.zeros(len(self.cameras), dtype=np.intp)
-                self.labelling.choice = choice
-                perm = self.labelling.permutations[choice]  # (C, K)
-                observed = np.ascontiguousarray(np.take_along_axis(observed, perm[..., None], axis=1))
-                detected = np.take_along_axis(self.weights, perm, axis=1)
-                weights = np.ascontiguousarray(detected if entry.all_mapped else detected * entry.table.mapped[None])
-                # A permutation within each camera keeps its number of usable points: the
-                # residual's dimension does not change with the labelling, only which rows.
-                rows = np.flatnonzero(np.repeat((np.isfinite(observed).all(-1) & (detected > 0)).ravel(), 2))
-            residual, jac, _ = self.kernel(*arrays, *args, observed, weights, self.scale.sigma_px, self.min_depth, H is not None)
+            residual, jac, choice = body.reproject_factor(
+                root, pose.reshape(NUM_JOINTS - 1, 3), cameras, intrinsics, self.observed, self.weights, entry.mapped, self.scale.sigma_px,
+                self.min_depth, H is not None, hypotheses, allowed, cost, relabel, labelling is not None, self.focal_columns, len(self.focal_keys),
+            )  # fmt: skip
         except ValueError as exc:
             raise MocapgraphError(str(exc)) from None
-        if H is not None and self.focals:
-            focal_jac = self._focal_jacobian(intrinsics, *predicted, observed, weights)
-        if rows is not None:
-            residual = residual[rows]
-            jac = None if jac is None else jac[rows]
-            if H is not None and self.focals:
-                focal_jac = focal_jac[rows]
-        if self.labelling is not None:
-            # the relabellings' cost as one more row, constant in the variables
-            residual = np.append(residual, np.sqrt(2.0 * self.labelling.cost * np.count_nonzero(self.labelling.choice)))
-            jac = None if jac is None else np.vstack([jac, np.zeros((1, jac.shape[1]))])
+        if labelling is not None:
+            labelling.choice = choice
         if H is not None:
-            P = 6 + POSE_DIM + entry.table.shape_dim
+            P = body.num_params
             S = P - self.cache.offset_dim  # the shape's columns end here, the offset parameters' follow
             if len(self.states) == 1:
                 H[0] = jac[:, 0:6]
@@ -365,9 +314,9 @@ class _ReprojectionError:
                 H[self.first_camera - 1] = jac[:, 6 + POSE_DIM : S]
             for i, (c, _) in enumerate(self.refined):
                 H[self.first_camera + i] = jac[:, P + 6 * c : P + 6 * c + 6]
-            extra = 1 if self.labelling is not None else 0
+            focal = P + 6 * len(cameras)  # the focal keys' columns follow the cameras'
             for i in range(len(self.focal_keys)):
-                H[self.first_camera + len(self.refined) + i] = np.vstack([focal_jac[:, [i]], np.zeros((extra, 1))])
+                H[self.first_camera + len(self.refined) + i] = jac[:, focal + i : focal + i + 1]
             if self.offset_key is not None:
                 H[-1] = jac[:, S:P]
         return residual
@@ -499,7 +448,8 @@ def reprojection_factor(
         raise MocapgraphError("reprojection_factor: the root, pose, shape, camera, focal and offset keys must all differ")
     if fixed_shape is not None:
         fixed_shape = as_checked_array(fixed_shape, "fixed_shape", (body.shape_dim,))
-    usable = np.repeat((np.isfinite(observed).all(-1) & (weights > 0)).ravel(), 2)
+    # the native kernel's rule (on the whitened weights, as it sees them)
+    usable = np.isfinite(observed).all(-1) & (weights / noise_px > 0)
     if not usable.any():
         raise MocapgraphError("reprojection_factor: no usable observation (every point is NaN or has weight 0)")
     if labelling is not None:
@@ -517,10 +467,9 @@ def reprojection_factor(
         np.ascontiguousarray(weights / noise_px),
         scale,
         float(min_depth),
-        None if usable.all() else np.flatnonzero(usable),
         labelling,
         focals,
         None if offset_key is None else int(offset_key),
     )
-    rows = int(usable.sum()) + (labelling is not None)
+    rows = 2 * int(usable.sum()) + (labelling is not None)
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), keys, error)
