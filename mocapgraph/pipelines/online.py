@@ -105,6 +105,8 @@ log = logging.getLogger(__name__)
 RIGS = ("aircap", "smartmocap")
 CAMERA_MODES = ("refine", "prior")
 PRIOR_SOURCES = ("auto", "fused", "self_pose")
+UAV_BODY_SWAPS = ("minority", "none")
+BOOTSTRAP_MOTION_PRIORS = ("vae", "none")
 # The shape the loop publishes (its state, the gate's and the results' joints) follows the refined
 # estimate once it moved this far (shape units; ~0.5 mm of height): each new shape costs a body
 # table (~10 ms), so a shape creeping at every update is not followed update by update
@@ -262,8 +264,10 @@ class OnlineOptions:
             raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
-        if self.uav_body_swaps not in ("minority", "none"):
-            raise MocapgraphError(f"uav_body_swaps {self.uav_body_swaps!r}: choose minority or none")
+        if self.uav_body_swaps not in UAV_BODY_SWAPS:
+            raise MocapgraphError(f"uav_body_swaps {self.uav_body_swaps!r}: choose one of {', '.join(UAV_BODY_SWAPS)}")
+        if self.bootstrap_motion_prior not in BOOTSTRAP_MOTION_PRIORS:
+            raise MocapgraphError(f"bootstrap_motion_prior {self.bootstrap_motion_prior!r}: choose one of {', '.join(BOOTSTRAP_MOTION_PRIORS)}")
         if self.camera_priors not in PRIOR_SOURCES:
             raise MocapgraphError(f"camera_priors {self.camera_priors!r}: choose one of {', '.join(PRIOR_SOURCES)}")
         self.navigation.check()
@@ -305,7 +309,7 @@ class OnlineStats:
     camera_priors: dict[str, dict[str, int]] = field(default_factory=dict)  # camera → {"fused" | "self_pose": frames}
     solver_resets: int = 0  # smoother updates that threw; the window restarted from the tracker's prediction
     relabelled: int = 0
-    body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many views of their update took one as not (uav_body_swaps)
+    body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many cameras of their update took one as not (uav_body_swaps)
     bootstrap_seconds: float = 0.0
     bootstrap_observations: int = 0
     busy_seconds: float = 0.0  # inside update() after the bootstrap, wall clock
@@ -499,7 +503,7 @@ class OnlineFusion:
         # per-state flags of what the loop could not determine (results' flags)
         self._flagged: dict[str, set[int]] = {"no_camera_prior": set(), "camera_prior_coasting": set(), "solver_reset": set()}
         self._pending = gtsam.NonlinearFactorGraph()
-        self._body_votes: list[tuple[Labelling, gtsam.NonlinearFactor]] = []  # UAV detections of the update that may relabel their whole body
+        self._body_votes: list[tuple[int, Labelling, gtsam.NonlinearFactor]] = []  # UAV detections of the update that may relabel their whole body
         self._pending_values = gtsam.Values()
         self._pending_stamps: dict[int, float] = {}
         self._counts: dict[int, int] = {}
@@ -1030,7 +1034,7 @@ class OnlineFusion:
         )  # fmt: skip
         self._pending.add(factor)
         if labelling is not None and labelling.allowed[0, SWAP_KINDS.index("body")] and voted:
-            self._body_votes.append((labelling, factor))
+            self._body_votes.append((c, labelling, factor))
         self.stats.used += 1
         self._last_observed = max(self._last_observed, i + (1 if a else 0))
         if self.record:
@@ -1133,23 +1137,37 @@ class OnlineFusion:
             self.shape = estimate
 
     def _vote_body_swaps(self) -> None:
-        """``uav_body_swaps="minority"``: the update's UAV detections' labellings at the new
-        states' prediction; when as many relabel their whole body as keep it, none may (the
-        prediction is what is turned round)."""
+        """``uav_body_swaps="minority"``: each UAV camera of the update sees the body flipped or
+        not at the new states' prediction (its newest detection's labelling there); when two
+        cameras or more are in the update and as many see it flipped as not, none may relabel
+        (the prediction is what is turned round). A camera alone in its update may: nothing says
+        the prediction is turned, and a body held to a single flipped view was dragged round
+        (one UAV without its onboard estimate: 3.3 m and 75 deg off, docs/online.md)."""
         votes, self._body_votes = self._body_votes, []
         if not votes:
             return
-        values = gtsam.Values(self.smoother.estimate)
-        values.insert(self._pending_values)
         body = SWAP_KINDS.index("body")
-        flipped = 0
-        for labelling, factor in votes:
-            factor.error(values)  # sets labelling.choice at these values
-            flipped += int(labelling.choice[0] == body)
-        if flipped and 2 * flipped >= len(votes):
-            for labelling, _ in votes:
+        seen: dict[int, bool] = {}
+        for c, labelling, factor in votes:
+            factor.error(self._factor_values(factor))  # sets labelling.choice at these values
+            seen[c] = bool(labelling.choice[0] == body)
+        flipped = sum(seen.values())
+        if len(seen) >= 2 and flipped and 2 * flipped >= len(seen):
+            for _, labelling, _ in votes:
+                self.stats.body_swaps_refused += int(labelling.choice[0] == body)
                 labelling.allowed[0, body] = False
-            self.stats.body_swaps_refused += flipped
+
+    def _factor_values(self, factor: gtsam.NonlinearFactor) -> gtsam.Values:
+        """The current values of ``factor``'s keys only (the window's estimate, or the update's
+        new variables): what evaluating it reads, without copying the window."""
+        out = gtsam.Values()
+        for key in factor.keys():
+            values = self._pending_values if self._pending_values.exists(key) else self.smoother.estimate
+            if chr(gtsam.Symbol(key).chr()) in "qb":
+                out.insert(key, values.atVector(key))
+            else:
+                out.insert(key, values.atPose3(key))
+        return out
 
     def _hold_refined(self, now: float) -> None:
         """The static cameras refined for ``static_refine_s`` and the shape refined for
