@@ -143,8 +143,8 @@ def add_parsers(subparsers) -> None:
     for parser in (baseline, aircap, airpose, smartmocap):
         parser.set_defaults(func=cmd_run)
 
-    from mocapgraph.pipelines.online import CAMERA_MODES as ONLINE_CAMERAS
     from mocapgraph.pipelines.online import BOOTSTRAP_MOTION_PRIORS, PRIOR_SOURCES, RIGS, UAV_BODY_SWAPS, OnlineOptions
+    from mocapgraph.pipelines.online import CAMERA_MODES as ONLINE_CAMERAS
 
     online = command(
         run, "online", "replay a capture as a stream through the fixed-lag fusion; writes the smoothed trajectory at --out and "
