@@ -497,8 +497,8 @@ def test_stats_report_wall_clock_and_cpu_time(rich_run):
 def test_whole_body_vote_counts_cameras_and_lets_a_lone_camera_relabel():
     """The vote's rule, on labellings whose evaluation sees the body flipped or not: refused (for
     every detection of the update) when two cameras or more are in it and at least half of them
-    see it flipped; a camera alone in its update, or in a minority, may relabel. A camera's newest
-    detection is its vote."""
+    see it flipped; a camera in a minority may relabel, and one alone in its update too unless its
+    prior is the GPS/IMU fusion's. A camera's newest detection is its vote."""
     from mocapgraph.factors.reprojection import Labelling
 
     body = SWAP_KINDS.index("body")
@@ -512,16 +512,18 @@ def test_whole_body_vote_counts_cameras_and_lets_a_lone_camera_relabel():
             self.labelling.choice = np.array([body if self.flipped else 0])
             return 0.0
 
-    def vote(cameras_flipped):
+    def vote(cameras_flipped, fused=False):
         votes = []
         for c, flipped in cameras_flipped:
             labelling = Labelling(np.zeros((len(SWAP_KINDS), 3), dtype=int) + np.arange(3), 1.0, allowed=np.ones((1, len(SWAP_KINDS)), bool))
-            votes.append((c, labelling, Seen(labelling, flipped)))
+            votes.append((c, labelling, Seen(labelling, flipped), fused))
         fusion._body_votes, refused = votes, fusion.stats.body_swaps_refused
         fusion._vote_body_swaps()
-        return [bool(lab.allowed[0, body]) for _, lab, _ in votes], fusion.stats.body_swaps_refused - refused
+        return [bool(lab.allowed[0, body]) for _, lab, _, _ in votes], fusion.stats.body_swaps_refused - refused
 
     assert vote([(0, True)]) == ([True], 0)  # alone: nothing says the prediction is turned
+    assert vote([(0, True)], fused=True) == ([False], 1)  # alone on a prior a metre off
+    assert vote([(0, False)], fused=True) == ([True], 0)
     assert vote([(0, True), (1, False), (2, False)]) == ([True] * 3, 0)
     assert vote([(0, True), (1, False)]) == ([False] * 2, 1)  # as many flipped as not
     assert vote([(0, True), (1, True), (2, False)]) == ([False] * 3, 2)

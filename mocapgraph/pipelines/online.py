@@ -20,7 +20,7 @@ weak pose regulariser, and camera variables:
   samples received so far (:class:`~mocapgraph.graphs.navigation.IncrementalNavigation`); a GPS
   outage leaves that fusion coasting on the IMU (flag ``camera_prior_coasting``). A static camera
   with a calibration is held at it. A UAV detection may relabel its whole body (its detector's
-  front/back flip) only in a minority of its update's views (``uav_body_swaps``), and the joints the
+  front/back flip) only in a minority of its update's cameras, or alone in it (``uav_body_swaps``), and the joints the
   pose GMM leaves out (spine3, collars, feet) are held at 0.2 rad (``unmodelled_sigma_rad``): else a
   flip was explained by turning the upper body round on them.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable kept in the window (under a
@@ -194,12 +194,13 @@ class OnlineOptions:
     # seed 1 0.080 -> 0.066 m; 0.1 rad: 0.088 m on seed 0; docs/online.md).
     unmodelled_sigma_rad: float | None | str = "rig"
     # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
-    # only while fewer of an update's detections take it than keep their body as detected (decided
-    # at the new states' prediction: when most views see the body flipped, the prediction is
-    # turned round, not their detectors); "none": never (as graph.moving_body_swaps=False).
-    # Always allowed, a body once turned round stayed so (aircap 10 s: 216 of 267 relabellings not
-    # in the truth); never allowed, a flip in one view of three was explained by twisting the body
-    # (docs/online.md).
+    # only while fewer of an update's cameras take it than keep their body as detected, or by a
+    # camera alone in its update (decided at the new states' prediction: when most views see the
+    # body flipped, the prediction is turned round, not their detectors; a lone view refused it
+    # dragged the body 3.3 m round through a GPS outage); "none": never (as
+    # graph.moving_body_swaps=False). Always allowed, a body once turned round stayed so (aircap
+    # 10 s: 216 of 267 relabellings not in the truth); never allowed, a flip in one view of three
+    # was explained by twisting the body (docs/online.md).
     uav_body_swaps: str = "minority"
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
@@ -423,6 +424,7 @@ class _Frame:
     labellings: list[Labelling] = field(default_factory=list)
     no_prior: bool = False  # a UAV camera's frame without its onboard estimate
     coasting: bool = False  # a UAV camera's frame whose fused prior rested on the IMU alone
+    fused: bool = False  # a UAV camera's frame whose prior is its vehicle's GPS/IMU fusion (not its onboard estimate)
     tied: bool = False  # a variable tied by smoothness to the camera's previous frame in the window
 
 
@@ -503,7 +505,7 @@ class OnlineFusion:
         # per-state flags of what the loop could not determine (results' flags)
         self._flagged: dict[str, set[int]] = {"no_camera_prior": set(), "camera_prior_coasting": set(), "solver_reset": set()}
         self._pending = gtsam.NonlinearFactorGraph()
-        self._body_votes: list[tuple[int, Labelling, gtsam.NonlinearFactor]] = []  # UAV detections of the update that may relabel their whole body
+        self._body_votes: list[tuple[int, Labelling, gtsam.NonlinearFactor, bool]] = []  # UAV detections of the update that may relabel their whole body (and whether their prior is the fusion's)
         self._pending_values = gtsam.Values()
         self._pending_stamps: dict[int, float] = {}
         self._counts: dict[int, int] = {}
@@ -810,9 +812,9 @@ class OnlineFusion:
         log.info("online: track re-acquired at %.2f s, body moved %.2f m from its prediction", self.t0 + k * self.period, np.linalg.norm(out[:3, 3] - root[:3, 3]))
         return out, pose
 
-    def _camera_prior(self, c: int, t: float) -> tuple[np.ndarray, np.ndarray, bool] | None:
-        """Camera ``c``'s pose, covariance and whether it rests on the IMU alone (a GPS outage)
-        at ``t``: from its vehicle's GPS/IMU fusion so far (``camera_priors="fused"``), else its
+    def _camera_prior(self, c: int, t: float) -> tuple[np.ndarray, np.ndarray, bool, bool] | None:
+        """Camera ``c``'s pose, covariance, whether it rests on the IMU alone (a GPS outage) and
+        whether it is the fusion's at ``t``: from its vehicle's GPS/IMU fusion so far (``camera_priors="fused"``), else its
         onboard estimate so far."""
         cam = self.rig.cameras[c]
         nav = self._navigation.get(c)
@@ -820,7 +822,7 @@ class OnlineFusion:
         counts = self.stats.camera_priors.setdefault(cam.name, {"fused": 0, "self_pose": 0})
         if fused is not None:
             counts["fused"] += 1
-            return fused.world_T_camera, fused.covariance, fused.coasting
+            return fused.world_T_camera, fused.covariance, fused.coasting, True
         samples = self._self_pose[c]
         if cam.mount is None or not samples:
             return None
@@ -832,7 +834,7 @@ class OnlineFusion:
         log_ = {"self_pose": {"t": np.array([s[0] for s in near]), "rotation": np.array([s[1] for s in near]), "position": np.array([s[2] for s in near])}}
         track = online_track(log_, cam.mount, np.array([t]), cam.name, noise=self.options.online_noise)
         counts["self_pose"] += 1
-        return track.world_T_camera[0], track.covariance[0], False
+        return track.world_T_camera[0], track.covariance[0], False, False
 
     def _camera(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None = None) -> _Frame | None:
         """Camera ``c``'s frame at ``t``: held, or a variable (created with its priors and
@@ -874,7 +876,7 @@ class OnlineFusion:
             if seed is None:
                 return None
         if prior is not None and o.cameras == "prior":
-            frames[t] = _Frame(None, prior[0], t, coasting=prior[2])
+            frames[t] = _Frame(None, prior[0], t, coasting=prior[2], fused=prior[3])
             return frames[t]
         key = camera_key(c, int(self._frame_count[c] % CAMERA_STRIDE))
         self._frame_count[c] += 1
@@ -902,7 +904,7 @@ class OnlineFusion:
             self._pending.add(camera_smoothness_factor(previous.key, key, dt, o.graph.camera_sigma_rad_s, o.graph.camera_sigma_m_s))
         if before is not None and o.graph.camera_sigma_m_s2 is not None and self._in_window(before.key):
             self._pending.add(camera_acceleration_factor([before.key, previous.key, key], [before.time, previous.time, t], o.graph.camera_sigma_m_s2))
-        frames[t] = _Frame(key, start, t, tied=tied, coasting=prior is not None and prior[2])
+        frames[t] = _Frame(key, start, t, tied=tied, coasting=prior is not None and prior[2], fused=prior is not None and prior[3])
         return frames[t]
 
     def _in_window(self, key: int) -> bool:
@@ -1034,7 +1036,7 @@ class OnlineFusion:
         )  # fmt: skip
         self._pending.add(factor)
         if labelling is not None and labelling.allowed[0, SWAP_KINDS.index("body")] and voted:
-            self._body_votes.append((c, labelling, factor))
+            self._body_votes.append((c, labelling, factor, view.fused))
         self.stats.used += 1
         self._last_observed = max(self._last_observed, i + (1 if a else 0))
         if self.record:
@@ -1140,9 +1142,11 @@ class OnlineFusion:
         """``uav_body_swaps="minority"``: each UAV camera of the update sees the body flipped or
         not at the new states' prediction (its newest detection's labelling there); when two
         cameras or more are in the update and as many see it flipped as not, none may relabel
-        (the prediction is what is turned round). A camera alone in its update may: nothing says
-        the prediction is turned, and a body held to a single flipped view was dragged round
-        (one UAV without its onboard estimate: 3.3 m and 75 deg off, docs/online.md)."""
+        (the prediction is what is turned round). A camera alone in its update may, on its
+        onboard estimate: nothing says the prediction is turned, and a body held to a single
+        flipped view was dragged round (one UAV without its onboard estimate: 3.3 m and 75 deg
+        off); not on the GPS/IMU fusion's prior, 1 m off, where such lone flips were not the
+        detector's (aircap 10 s: 6 of 6 not in the truth, MPJPE 0.98 -> 2.99 m; docs/online.md)."""
         votes, self._body_votes = self._body_votes, []
         if not votes:
             return
@@ -1152,13 +1156,14 @@ class OnlineFusion:
         values = gtsam.Values(self.smoother.estimate)
         values.insert(self._pending_values)
         body = SWAP_KINDS.index("body")
-        seen: dict[int, bool] = {}
-        for c, labelling, factor in votes:
+        seen: dict[int, tuple[bool, bool]] = {}
+        for c, labelling, factor, fused in votes:
             factor.error(values)  # sets labelling.choice at these values
-            seen[c] = bool(labelling.choice[0] == body)
-        flipped = sum(seen.values())
-        if len(seen) >= 2 and flipped and 2 * flipped >= len(seen):
-            for _, labelling, _ in votes:
+            seen[c] = (bool(labelling.choice[0] == body), fused)
+        flipped = sum(f for f, _ in seen.values())
+        alone = len(seen) == 1 and not next(iter(seen.values()))[1]
+        if flipped and not alone and 2 * flipped >= len(seen):
+            for _, labelling, _, _ in votes:
                 self.stats.body_swaps_refused += int(labelling.choice[0] == body)
                 labelling.allowed[0, body] = False
 
