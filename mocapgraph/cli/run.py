@@ -163,8 +163,8 @@ def add_parsers(subparsers) -> None:
     )  # fmt: skip
     flags.add("detector", "detector name", unset="each camera's first")
     flags.add(
-        "uav_body_swaps", "aircap: a UAV detection may relabel its whole body (its detector's front/back flip) while fewer UAV "
-        "cameras see the body flipped than not (minority), or never (none)", choices=UAV_BODY_SWAPS,
+        "uav_body_swaps", "aircap: a UAV detection may relabel its whole body (its detector's front/back flip) while fewer of its "
+        "update's UAV cameras see the body flipped than not, or alone in the update on its onboard estimate (minority), or never (none)", choices=UAV_BODY_SWAPS,
     )  # fmt: skip
     flags.add(
         "unmodelled_sigma_rad", "regulariser width on the joints the pose GMM leaves out (spine3, collars, feet), radians; "

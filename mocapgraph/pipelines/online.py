@@ -20,9 +20,9 @@ weak pose regulariser, and camera variables:
   samples received so far (:class:`~mocapgraph.graphs.navigation.IncrementalNavigation`); a GPS
   outage leaves that fusion coasting on the IMU (flag ``camera_prior_coasting``). A static camera
   with a calibration is held at it. A UAV detection may relabel its whole body (its detector's
-  front/back flip) only in a minority of its update's cameras, or alone in it (``uav_body_swaps``), and the joints the
-  pose GMM leaves out (spine3, collars, feet) are held at 0.2 rad (``unmodelled_sigma_rad``): else a
-  flip was explained by turning the upper body round on them.
+  front/back flip) only in a minority of its update's cameras, or alone in it on its onboard estimate
+  (``uav_body_swaps``), and the joints the pose GMM leaves out (spine3, collars, feet) are held at
+  0.2 rad (``unmodelled_sigma_rad``): else a flip was explained by turning the upper body round on them.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable kept in the window (under a
   prior at the bootstrap's estimate: the body states leaving the window leave their information on
   it) for ``static_refine_s``, then held at its estimate; a
@@ -195,9 +195,9 @@ class OnlineOptions:
     unmodelled_sigma_rad: float | None | str = "rig"
     # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
     # only while fewer of an update's cameras take it than keep their body as detected, or by a
-    # camera alone in its update (decided at the new states' prediction: when most views see the
-    # body flipped, the prediction is turned round, not their detectors; a lone view refused it
-    # dragged the body 3.3 m round through a GPS outage); "none": never (as
+    # camera alone in its update on its onboard estimate (decided at the new states' prediction:
+    # when most views see the body flipped, the prediction is turned round, not their detectors; a
+    # lone view refused it dragged the body 3.3 m round through a GPS outage); "none": never (as
     # graph.moving_body_swaps=False). Always allowed, a body once turned round stayed so (aircap
     # 10 s: 216 of 267 relabellings not in the truth); never allowed, a flip in one view of three
     # was explained by twisting the body (docs/online.md).
