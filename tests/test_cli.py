@@ -164,3 +164,27 @@ def test_priors_train_reads_the_default_motion_directory(tmp_path, monkeypatch, 
     assert main(["priors", "train", "pose", "--out", str(out), "--components", "2", "-q"]) == 0
     assert "held-out subjects" in capsys.readouterr().out
     assert PoseGMM.load(out).info["data"] == tmp_path.name
+
+
+def test_run_online_flags_set_the_options_and_bad_values_are_one_error(tmp_path, capsys):
+    """``run online``'s tuning flags reach :class:`OnlineOptions` (numbers, ``rig``, ``none``);
+    a bad value is the options' own error, exit code 2, before OUT is reserved."""
+    from mocapgraph.cli.main import build_parser
+    from mocapgraph.pipelines.online import OnlineOptions
+
+    out = tmp_path / "out"
+    base = ["run", "online", str(tmp_path / "capture"), "--out", str(out)]
+    args = build_parser().parse_args(base + ["--uav-body-swaps", "none", "--unmodelled-sigma", "0.3", "--pose-sigma", "none", "--hips-sigma", "40", "--static-refine", "none", "--coast", "0.8"])
+    options = args.options_from(args)
+    assert (options.uav_body_swaps, options.unmodelled_sigma_rad, options.pose_sigma_rad_s2, options.hips_sigma_rad_s2) == ("none", 0.3, None, 40.0)
+    assert (options.static_refine_s, options.coast_s) == (None, 0.8)
+    options.check()
+    defaults = build_parser().parse_args(base)
+    assert defaults.options_from(defaults) == OnlineOptions()
+    for flag, value, field in (("--unmodelled-sigma", "wide", "unmodelled_sigma_rad"), ("--hips-sigma", "-1", "hips_sigma_rad_s2"), ("--static-refine", "0", "static_refine_s")):
+        assert main(base + [flag, value]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mocapgraph: error: ") and field in err and "Traceback" not in err, err
+        assert not out.exists()
+    with pytest.raises(SystemExit):  # a word outside the choices: argparse's usage error
+        main(base + ["--uav-body-swaps", "all"])

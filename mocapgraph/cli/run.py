@@ -143,8 +143,8 @@ def add_parsers(subparsers) -> None:
     for parser in (baseline, aircap, airpose, smartmocap):
         parser.set_defaults(func=cmd_run)
 
+    from mocapgraph.pipelines.online import BOOTSTRAP_MOTION_PRIORS, PRIOR_SOURCES, RIGS, UAV_BODY_SWAPS, OnlineOptions
     from mocapgraph.pipelines.online import CAMERA_MODES as ONLINE_CAMERAS
-    from mocapgraph.pipelines.online import PRIOR_SOURCES, RIGS, OnlineOptions
 
     online = command(
         run, "online", "replay a capture as a stream through the fixed-lag fusion; writes the smoothed trajectory at --out and "
@@ -162,8 +162,39 @@ def add_parsers(subparsers) -> None:
         "(self_pose), or the onboard estimate where logged, else the fusion (auto)", choices=PRIOR_SOURCES,
     )  # fmt: skip
     flags.add("detector", "detector name", unset="each camera's first")
+    flags.add(
+        "uav_body_swaps", "aircap: a UAV detection may relabel its whole body (its detector's front/back flip) while fewer of its "
+        "update's UAV cameras see the body flipped than not, or alone in the update on its onboard estimate (minority), or never (none)", choices=UAV_BODY_SWAPS,
+    )  # fmt: skip
+    flags.add(
+        "unmodelled_sigma_rad", "regulariser width on the joints the pose GMM leaves out (spine3, collars, feet), radians; "
+        "rig: 0.2 on aircap, off on uncalibrated rigs; none: off", flag="--unmodelled-sigma", type=_number_or_word, metavar="RAD|rig|none",
+    )  # fmt: skip
+    flags.add(
+        "pose_sigma_rad_s2", "joint rotations' constant-velocity prior, rad/s^2; rig: 20 on uncalibrated rigs, off on aircap; none: off",
+        flag="--pose-sigma", type=_number_or_word, metavar="RAD_S2|rig|none",
+    )  # fmt: skip
+    flags.add("hips_sigma_rad_s2", "the hips' rotations in that prior, rad/s^2 (none: as the other joints)", flag="--hips-sigma", type=_number_or_word, metavar="RAD_S2|none")
+    flags.add("coast_s", "seconds without detections before the track counts as lost (the prediction held, the gate opened)", flag="--coast")
+    flags.add("gate_margin", "the gate's region of interest: the predicted body's box widened by this fraction of its height")
+    flags.add("prior_timeout_s", "aircap: a UAV frame with no onboard-estimate sample this near its time is not used, seconds", flag="--prior-timeout")
+    flags.add("bootstrap_motion_prior", "the motion prior in the bootstrap's batch solve", choices=BOOTSTRAP_MOTION_PRIORS)
+    flags.add("static_cameras", "uncalibrated rigs: static cameras refined in the window under a prior, or held at the bootstrap's estimate", choices=("refine", "hold"))
+    flags.add("static_refine_s", "seconds a static camera is refined before it is held at its estimate (none: all along)", flag="--static-refine", type=_number_or_word, metavar="S|none")
+    flags.add("shape", "body shape after the bootstrap: held, or refined in the window", choices=("hold", "refine"))
     online.add_argument("--realtime", action="store_true", help="replay at the capture's own rate")
     online.set_defaults(func=cmd_run_online)
+
+
+def _number_or_word(text: str):
+    """A flag's value: a number, ``none`` (None), or another word left for the options' check to
+    accept (``rig``) or refuse with its own message."""
+    if text.lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
 
 def cmd_run_online(args) -> None:
@@ -175,6 +206,8 @@ def cmd_run_online(args) -> None:
     from mocapgraph.data_tools.io.result import MANIFEST, write_result
     from mocapgraph.pipelines.online import run_online, summary
 
+    options = args.options_from(args)
+    options.check()  # before OUT is reserved: a bad flag is the options' one clear error
     reserve_output(args.out, args.overwrite, MANIFEST, inputs=[args.capture])
     capture = load_capture(args.capture)
     shown = [0.0]
@@ -189,7 +222,7 @@ def cmd_run_online(args) -> None:
         line = f"t {state.time:7.2f} s  {s['updates_per_s']:6.1f} updates/s  latency p50 {lat['p50']:5.1f} ms p95 {lat['p95']:5.1f} ms  dropped {fusion.stats.dropped}"
         print(f"\r{line}", end="", file=sys.stderr, flush=True)
 
-    run = run_online(capture, args.options_from(args), capture_label=str(args.capture), realtime=args.realtime, on_update=live)
+    run = run_online(capture, options, capture_label=str(args.capture), realtime=args.realtime, on_update=live)
     print(file=sys.stderr)
     write_result(run.smoothed, args.out, overwrite=args.overwrite)
     write_result(run.filtered, args.out / "filtered", overwrite=True)

@@ -20,9 +20,9 @@ weak pose regulariser, and camera variables:
   samples received so far (:class:`~mocapgraph.graphs.navigation.IncrementalNavigation`); a GPS
   outage leaves that fusion coasting on the IMU (flag ``camera_prior_coasting``). A static camera
   with a calibration is held at it. A UAV detection may relabel its whole body (its detector's
-  front/back flip) only in a minority of its update's views (``uav_body_swaps``), and the joints the
-  pose GMM leaves out (spine3, collars, feet) are held at 0.2 rad (``unmodelled_sigma_rad``): else a
-  flip was explained by turning the upper body round on them.
+  front/back flip) only in a minority of its update's cameras, or alone in it on its onboard estimate
+  (``uav_body_swaps``), and the joints the pose GMM leaves out (spine3, collars, feet) are held at
+  0.2 rad (``unmodelled_sigma_rad``): else a flip was explained by turning the upper body round on them.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable kept in the window (under a
   prior at the bootstrap's estimate: the body states leaving the window leave their information on
   it) for ``static_refine_s``, then held at its estimate; a
@@ -109,6 +109,8 @@ log = logging.getLogger(__name__)
 RIGS = ("aircap", "smartmocap")
 CAMERA_MODES = ("refine", "prior")
 PRIOR_SOURCES = ("auto", "fused", "self_pose")
+UAV_BODY_SWAPS = ("minority", "none")
+BOOTSTRAP_MOTION_PRIORS = ("vae", "none")
 # The shape the loop publishes (its state, the gate's and the results' joints) follows the refined
 # estimate once it moved this far (shape units; ~0.5 mm of height): each new shape costs a body
 # table (~10 ms), so a shape creeping at every update is not followed update by update
@@ -200,12 +202,13 @@ class OnlineOptions:
     # 36.9 / 39.3 / 33.5 mm and seed 1's cameras 17.9 -> 21.7 mm; docs/online.md).
     unmodelled_sigma_rad: float | None | str = 0.2
     # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
-    # only while fewer of an update's detections take it than keep their body as detected (decided
-    # at the new states' prediction: when most views see the body flipped, the prediction is
-    # turned round, not their detectors); "none": never (as graph.moving_body_swaps=False).
-    # Always allowed, a body once turned round stayed so (aircap 10 s: 216 of 267 relabellings not
-    # in the truth); never allowed, a flip in one view of three was explained by twisting the body
-    # (docs/online.md).
+    # only while fewer of an update's cameras take it than keep their body as detected, or by a
+    # camera alone in its update on its onboard estimate (decided at the new states' prediction:
+    # when most views see the body flipped, the prediction is turned round, not their detectors; a
+    # lone view refused it dragged the body 3.3 m round through a GPS outage); "none": never (as
+    # graph.moving_body_swaps=False). Always allowed, a body once turned round stayed so (aircap
+    # 10 s: 216 of 267 relabellings not in the truth); never allowed, a flip in one view of three
+    # was explained by twisting the body (docs/online.md).
     uav_body_swaps: str = "minority"
     gate_margin: float = 1.0
     gate_min_keypoints: int = 4
@@ -280,8 +283,10 @@ class OnlineOptions:
             raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
-        if self.uav_body_swaps not in ("minority", "none"):
-            raise MocapgraphError(f"uav_body_swaps {self.uav_body_swaps!r}: choose minority or none")
+        if self.uav_body_swaps not in UAV_BODY_SWAPS:
+            raise MocapgraphError(f"uav_body_swaps {self.uav_body_swaps!r}: choose one of {', '.join(UAV_BODY_SWAPS)}")
+        if self.bootstrap_motion_prior not in BOOTSTRAP_MOTION_PRIORS:
+            raise MocapgraphError(f"bootstrap_motion_prior {self.bootstrap_motion_prior!r}: choose one of {', '.join(BOOTSTRAP_MOTION_PRIORS)}")
         if self.camera_priors not in PRIOR_SOURCES:
             raise MocapgraphError(f"camera_priors {self.camera_priors!r}: choose one of {', '.join(PRIOR_SOURCES)}")
         self.navigation.check()
@@ -326,7 +331,7 @@ class OnlineStats:
     camera_priors: dict[str, dict[str, int]] = field(default_factory=dict)  # camera → {"fused" | "self_pose": frames}
     solver_resets: int = 0  # smoother updates that threw; the window restarted from the tracker's prediction
     relabelled: int = 0
-    body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many views of their update took one as not (uav_body_swaps)
+    body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many cameras of their update took one as not (uav_body_swaps)
     bootstrap_seconds: float = 0.0
     bootstrap_observations: int = 0
     busy_seconds: float = 0.0  # inside update() after the bootstrap, wall clock
@@ -442,6 +447,7 @@ class _Frame:
     labellings: list[Labelling] = field(default_factory=list)
     no_prior: bool = False  # a UAV camera's frame without its onboard estimate
     coasting: bool = False  # a UAV camera's frame whose fused prior rested on the IMU alone
+    fused: bool = False  # a UAV camera's frame whose prior is its vehicle's GPS/IMU fusion (not its onboard estimate)
     tied: bool = False  # a variable tied by smoothness to the camera's previous frame in the window
 
 
@@ -528,7 +534,7 @@ class OnlineFusion:
         # per-state flags of what the loop could not determine (results' flags)
         self._flagged: dict[str, set[int]] = {"no_camera_prior": set(), "camera_prior_coasting": set(), "solver_reset": set()}
         self._pending = gtsam.NonlinearFactorGraph()
-        self._body_votes: list[tuple[Labelling, gtsam.NonlinearFactor]] = []  # UAV detections of the update that may relabel their whole body
+        self._body_votes: list[tuple[int, Labelling, gtsam.NonlinearFactor, bool]] = []  # UAV detections of the update that may relabel their whole body (and whether their prior is the fusion's)
         self._pending_values = gtsam.Values()
         self._pending_stamps: dict[int, float] = {}
         self._counts: dict[int, int] = {}
@@ -840,9 +846,9 @@ class OnlineFusion:
         log.info("online: track re-acquired at %.2f s, body moved %.2f m from its prediction", self.t0 + k * self.period, np.linalg.norm(out[:3, 3] - root[:3, 3]))
         return out, pose
 
-    def _camera_prior(self, c: int, t: float) -> tuple[np.ndarray, np.ndarray, bool] | None:
-        """Camera ``c``'s pose, covariance and whether it rests on the IMU alone (a GPS outage)
-        at ``t``: from its vehicle's GPS/IMU fusion so far (``camera_priors="fused"``), else its
+    def _camera_prior(self, c: int, t: float) -> tuple[np.ndarray, np.ndarray, bool, bool] | None:
+        """Camera ``c``'s pose, covariance, whether it rests on the IMU alone (a GPS outage) and
+        whether it is the fusion's at ``t``: from its vehicle's GPS/IMU fusion so far (``camera_priors="fused"``), else its
         onboard estimate so far."""
         cam = self.rig.cameras[c]
         nav = self._navigation.get(c)
@@ -850,7 +856,7 @@ class OnlineFusion:
         counts = self.stats.camera_priors.setdefault(cam.name, {"fused": 0, "self_pose": 0})
         if fused is not None:
             counts["fused"] += 1
-            return fused.world_T_camera, fused.covariance, fused.coasting
+            return fused.world_T_camera, fused.covariance, fused.coasting, True
         samples = self._self_pose[c]
         if cam.mount is None or not samples:
             return None
@@ -862,7 +868,7 @@ class OnlineFusion:
         log_ = {"self_pose": {"t": np.array([s[0] for s in near]), "rotation": np.array([s[1] for s in near]), "position": np.array([s[2] for s in near])}}
         track = online_track(log_, cam.mount, np.array([t]), cam.name, noise=self.options.online_noise)
         counts["self_pose"] += 1
-        return track.world_T_camera[0], track.covariance[0], False
+        return track.world_T_camera[0], track.covariance[0], False, False
 
     def _camera(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None = None) -> _Frame | None:
         """Camera ``c``'s frame at ``t``: held, or a variable (created with its priors and
@@ -904,7 +910,7 @@ class OnlineFusion:
             if seed is None:
                 return None
         if prior is not None and o.cameras == "prior":
-            frames[t] = _Frame(None, prior[0], t, coasting=prior[2])
+            frames[t] = _Frame(None, prior[0], t, coasting=prior[2], fused=prior[3])
             return frames[t]
         key = camera_key(c, int(self._frame_count[c] % CAMERA_STRIDE))
         self._frame_count[c] += 1
@@ -932,7 +938,7 @@ class OnlineFusion:
             self._pending.add(camera_smoothness_factor(previous.key, key, dt, o.graph.camera_sigma_rad_s, o.graph.camera_sigma_m_s))
         if before is not None and o.graph.camera_sigma_m_s2 is not None and self._in_window(before.key):
             self._pending.add(camera_acceleration_factor([before.key, previous.key, key], [before.time, previous.time, t], o.graph.camera_sigma_m_s2))
-        frames[t] = _Frame(key, start, t, tied=tied, coasting=prior is not None and prior[2])
+        frames[t] = _Frame(key, start, t, tied=tied, coasting=prior is not None and prior[2], fused=prior is not None and prior[3])
         return frames[t]
 
     def _in_window(self, key: int) -> bool:
@@ -1064,7 +1070,7 @@ class OnlineFusion:
         )  # fmt: skip
         self._pending.add(factor)
         if labelling is not None and labelling.allowed[0, SWAP_KINDS.index("body")] and voted:
-            self._body_votes.append((labelling, factor))
+            self._body_votes.append((c, labelling, factor, view.fused))
         self.stats.used += 1
         self._last_observed = max(self._last_observed, i + (1 if a else 0))
         if self.record:
@@ -1202,23 +1208,33 @@ class OnlineFusion:
             self.shape = estimate
 
     def _vote_body_swaps(self) -> None:
-        """``uav_body_swaps="minority"``: the update's UAV detections' labellings at the new
-        states' prediction; when as many relabel their whole body as keep it, none may (the
-        prediction is what is turned round)."""
+        """``uav_body_swaps="minority"``: each UAV camera of the update sees the body flipped or
+        not at the new states' prediction (its newest detection's labelling there); when two
+        cameras or more are in the update and as many see it flipped as not, none may relabel
+        (the prediction is what is turned round). A camera alone in its update may, on its
+        onboard estimate: nothing says the prediction is turned, and a body held to a single
+        flipped view was dragged round (one UAV without its onboard estimate: 3.3 m and 75 deg
+        off); not on the GPS/IMU fusion's prior, 1 m off, where such lone flips were not the
+        detector's (aircap 10 s: 6 of 6 not in the truth, MPJPE 0.98 -> 2.99 m; docs/online.md)."""
         votes, self._body_votes = self._body_votes, []
         if not votes:
             return
+        # a copy of the window (~60 keys) costs what a Values of each factor's own keys built in
+        # Python does (aircap 10 s: 0.67 against 0.69 ms per update for ~3 votes): the votes' cost
+        # is the factors' evaluation
         values = gtsam.Values(self.smoother.estimate)
         values.insert(self._pending_values)
         body = SWAP_KINDS.index("body")
-        flipped = 0
-        for labelling, factor in votes:
+        seen: dict[int, tuple[bool, bool]] = {}
+        for c, labelling, factor, fused in votes:
             factor.error(values)  # sets labelling.choice at these values
-            flipped += int(labelling.choice[0] == body)
-        if flipped and 2 * flipped >= len(votes):
-            for labelling, _ in votes:
+            seen[c] = (bool(labelling.choice[0] == body), fused)
+        flipped = sum(f for f, _ in seen.values())
+        alone = len(seen) == 1 and not next(iter(seen.values()))[1]
+        if flipped and not alone and 2 * flipped >= len(seen):
+            for _, labelling, _, _ in votes:
+                self.stats.body_swaps_refused += int(labelling.choice[0] == body)
                 labelling.allowed[0, body] = False
-            self.stats.body_swaps_refused += flipped
 
     def _hold_refined(self, now: float) -> None:
         """The static cameras refined for ``static_refine_s`` and the shape refined for
