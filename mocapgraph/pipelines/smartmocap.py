@@ -43,7 +43,7 @@ from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions, LearnedPriors, motion_windows
-from mocapgraph.graphs.camera_imu import estimated_clock_offsets, start_from_gyroscopes
+from mocapgraph.graphs.camera_imu import check_max_offset, estimated_clock_offsets, start_from_gyroscopes
 from mocapgraph.graphs.initialisation import (
     INITIALISERS,
     coco_views,
@@ -65,7 +65,7 @@ from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import camera_imus, capture_state_model
 from mocapgraph.pipelines.reference_cameras import SOURCES as CAMERA_SOURCES
 from mocapgraph.pipelines.reference_cameras import ReferenceTracks, load_camera_reference, reference_tracks
-from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, frame_ranges, imu_support_notes, swap_notes
+from mocapgraph.pipelines.results import clock_offset_parameters, combined_swaps, estimate_result, focal_notes, frame_ranges, imu_support_notes, swap_notes
 from mocapgraph.priors.motion_windows import WINDOW
 
 log = logging.getLogger(__name__)
@@ -201,8 +201,7 @@ class SmartmocapOptions:
             raise MocapgraphError(f"workers: a whole number of processes >= 1, got {self.workers!r}")
         if self.cameras_from is not None and self.cameras_from not in CAMERA_SOURCES:
             raise MocapgraphError(f"cameras_from {self.cameras_from!r}: choose one of {', '.join(CAMERA_SOURCES)}")
-        if self.imu_max_offset_s is not None and not (isinstance(self.imu_max_offset_s, (int, float)) and 0 < self.imu_max_offset_s <= 1.0):
-            raise MocapgraphError(f"imu_max_offset_s: a number of seconds in (0, 1] or None, got {self.imu_max_offset_s!r}")
+        check_max_offset(self.imu_max_offset_s)
         if len(self.reference_sigmas) != 2 or not all(np.isfinite(v) and v > 0 for v in self.reference_sigmas):
             raise MocapgraphError(f"reference_sigmas: two finite numbers > 0 (rad, m), got {self.reference_sigmas!r}")
 
@@ -625,7 +624,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes,
         focal_px=bg.focal_lengths(estimate), reprojection_px=reprojection,
         keypoint_offsets_m={fit.fmt: fit.as_table() for fit in fits} if options.keypoint_offsets else {},
-        imu_clock_offsets_s={model.names[c]: round(float(o), 5) for c, o in clock_offsets.items() if np.isfinite(o)},
+        imu_clock_offsets_s=clock_offset_parameters(model, clock_offsets),
     )
     return result
 
