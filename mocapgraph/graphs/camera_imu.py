@@ -310,6 +310,12 @@ def estimate_time_offset(
     return best, grid, scores
 
 
+def check_max_offset(max_offset_s: float | None) -> None:
+    """``imu_max_offset_s`` of the pipelines' options: seconds in (0, 1], or None (the clocks taken as one)."""
+    if max_offset_s is not None and not (isinstance(max_offset_s, (int, float)) and 0 < max_offset_s <= 1.0):
+        raise MocapgraphError(f"imu_max_offset_s: a number of seconds in (0, 1] or None, got {max_offset_s!r}")
+
+
 def estimated_clock_offsets(
     body: BodyModel, model: StateModel, estimate: Estimate, imus: Mapping[int, CameraImu], max_offset_s: float, noise: FusionNoise = PHONE_GYRO_NOISE,
     **costs,

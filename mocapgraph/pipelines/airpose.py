@@ -29,7 +29,7 @@ from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import PER_FRAME_CAMERA, Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions
-from mocapgraph.graphs.camera_imu import start_from_gyroscopes
+from mocapgraph.graphs.camera_imu import check_max_offset, estimated_clock_offsets, start_from_gyroscopes
 from mocapgraph.graphs.initialisation import (
     INITIALISERS,
     fuse_bodies,
@@ -43,7 +43,7 @@ from mocapgraph.graphs.initialisation import (
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.observations import camera_imus, capture_state_model
-from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, imu_support_notes, swap_notes
+from mocapgraph.pipelines.results import clock_offset_parameters, combined_swaps, estimate_result, focal_notes, imu_support_notes, swap_notes
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +83,11 @@ class AirposeOptions:
     # (BodyGraph's imu_reference; the accelerometer is not used: camera 1's frame has no known
     # gravity direction).
     imu: bool = True
+    # The largest offset of a log's clock from its camera's searched for after the first
+    # AirPose+ solve, on its body, as SmartMocap does (graphs.camera_imu.estimated_clock_offsets;
+    # with camera 1 static only: the track's constant-velocity model needs a world that does not
+    # turn); None: the clocks taken as one.
+    imu_max_offset_s: float | None = 0.05
     graph: GraphOptions = field(default_factory=GraphOptions)
 
     def check(self) -> None:
@@ -95,6 +100,7 @@ class AirposeOptions:
             raise MocapgraphError(f"swap_window_frames: an integer >= 1, got {self.swap_window_frames!r}")
         if not (isinstance(self.swap_rounds, int) and self.swap_rounds >= 0):
             raise MocapgraphError(f"swap_rounds: an integer >= 0, got {self.swap_rounds!r}")
+        check_max_offset(self.imu_max_offset_s)
 
 
 def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture_label: str = "") -> Result:
@@ -150,9 +156,16 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
         log.info("airpose: %s", note)
     bg = BodyGraph(model, body, options.graph, fixed_cameras={0: np.tile(np.eye(4), (len(capture.cameras[0].timestamps), 1, 1))}, imu=imu, imu_reference=0)
     graph = values = swaps = None
+    clock_offsets: dict[int, float] = {}
     if options.refine:
         log.info("airpose: AirPose+, %d frames, %d camera poses", model.num_states, len(bg.camera_vars()))
         graph, values, estimate = _bundle_adjust(bg, estimate, options.iterations, "AirPose+")
+        if imu and options.imu_max_offset_s is not None and not reference_moves:
+            # each log's clock against its camera's, on this solve's body; then solved again on
+            # the shifted logs (docs/phone-imu.md, "AirPose+")
+            imu, clock_offsets = estimated_clock_offsets(body, model, estimate, imu, options.imu_max_offset_s, options.graph.imu_noise)
+            bg = BodyGraph(model, body, options.graph, fixed_cameras=bg.fixed_cameras, imu=imu, imu_reference=0)
+            graph, values, estimate = _bundle_adjust(bg, estimate, options.iterations, "AirPose+ (IMU clocks)")
         for _ in range(options.swap_rounds if options.graph.swaps and options.posed_swaps else 0):
             # The solve explains a run it did not relabel by taking the other camera round the
             # person; its cameras elsewhere check the labels again, and the sequence is solved
@@ -165,7 +178,7 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
             # held as checked: the solve's own choice would put the runs back
             graph, values, estimate = _bundle_adjust(bg, estimate, options.iterations, "AirPose+ (relabelled)", relabel=False)
         swaps = combined_swaps(model, before, bg.relabelled(estimate))
-        notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + imu_support_notes(bg)
+        notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + imu_support_notes(bg, clock_offsets)
     seconds = time.perf_counter() - t_start
     placed_cameras = [c for c in range(model.num_cameras) if placed[c]]
     result = estimate_result(
@@ -175,7 +188,10 @@ def run_airpose(capture: Capture, options: AirposeOptions | None = None, capture
     if options.covariances and graph is not None:
         result.covariances.update(bg.covariances(graph, values, estimate))
     result = _with_left_out(result, full.times, keep)
-    result.parameters.update(focal_px=bg.focal_lengths(estimate) if options.refine else {}, initialiser_used=used, seconds=round(seconds, 3), frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes)
+    result.parameters.update(
+        focal_px=bg.focal_lengths(estimate) if options.refine else {}, initialiser_used=used, seconds=round(seconds, 3),
+        frames_per_second=round(model.num_states / max(seconds, 1e-9), 2), notes=notes, imu_clock_offsets_s=clock_offset_parameters(model, clock_offsets),
+    )
     return result
 
 

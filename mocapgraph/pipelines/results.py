@@ -113,6 +113,12 @@ def frame_ranges(frames: np.ndarray) -> str:
     return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}" for r in runs if len(r))
 
 
+def clock_offset_parameters(model: StateModel, clock_offsets: dict[int, float]) -> dict[str, float]:
+    """The result's ``imu_clock_offsets_s``: camera name → its log's estimated clock offset,
+    seconds (those that could be estimated)."""
+    return {model.names[c]: round(float(o), 5) for c, o in clock_offsets.items() if np.isfinite(o)}
+
+
 def imu_support_notes(bg: BodyGraph, clock_offsets: dict[int, float] | None = None) -> list[str]:
     """Per estimated moving camera, what its poses rest on: its views of the body (through which
     the other cameras), the constant-velocity model if used, and its IMU over which frames (in a

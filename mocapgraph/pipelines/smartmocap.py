@@ -43,7 +43,7 @@ from mocapgraph.data_tools.io.result import Result, options_parameters
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.factors.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions, LearnedPriors, motion_windows
-from mocapgraph.graphs.camera_imu import estimated_clock_offsets, start_from_gyroscopes
+from mocapgraph.graphs.camera_imu import check_max_offset, estimated_clock_offsets, start_from_gyroscopes
 from mocapgraph.graphs.initialisation import (
     INITIALISERS,
     coco_views,
@@ -65,7 +65,7 @@ from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import camera_imus, capture_state_model
 from mocapgraph.pipelines.reference_cameras import SOURCES as CAMERA_SOURCES
 from mocapgraph.pipelines.reference_cameras import ReferenceTracks, load_camera_reference, reference_tracks
-from mocapgraph.pipelines.results import combined_swaps, estimate_result, focal_notes, frame_ranges, imu_support_notes, swap_notes
+from mocapgraph.pipelines.results import clock_offset_parameters, combined_swaps, estimate_result, focal_notes, frame_ranges, imu_support_notes, swap_notes
 from mocapgraph.priors.motion_windows import WINDOW
 
 log = logging.getLogger(__name__)
@@ -156,11 +156,17 @@ class SmartmocapOptions:
     # The error the calibrated covariances (docs/uncertainty.md) still leave out, as variance
     # factors of the joints (and root), the static cameras and the moving ones: measured on
     # `phones` takes of subjects the motion prior never trained on and that no benchmark uses
-    # (cmu 08_04, 49_02, 49_10, 18_08, 27_01; seeds 100-104; 3 s, the bench's settings): the
-    # factor that puts 95 % of their errors inside the 95 % ellipsoids. The cameras' errors there
-    # are 3-6x their σ: biases (a detector's person size, the swaps' residue) the graph has no
+    # (cmu 08_04, 49_02, 49_10, 18_08, 27_01; seeds 100-104; 1.5 s and 3 s, the bench's
+    # settings): the factor that, with the rotation below, puts 95 % of their errors inside the
+    # 95 % ellipsoids. Biases (a detector's person size, the swaps' residue) the graph has no
     # variable for.
-    covariance_model_error: tuple[float, float, float] = (3.7, 22.5, 13.0)
+    covariance_model_error: tuple[float, float, float] = (3.39, 15.1, 5.67)
+    # And a rotation of each quantity about the joints' centroid, σ in radians per kind (joints
+    # and root, static cameras, moving cameras): an error that grows with the distance from the
+    # centroid, as the person walks away from it in a long take and as a camera stands metres
+    # off; σ by maximum likelihood on the same takes, then the factors above by the 95 % rule
+    # with it (docs/uncertainty.md, "The take's length").
+    covariance_lever_error_rad: tuple[float, float, float] = (0.006, 0.012, 0.022)
     # The shape estimated: with several views it is observable, and on a CMU walk seen by the rich
     # rig it halved the root orientation error (RA-MPJPE 3.7 -> 2.1 cm) and brought the scene's
     # scale within 4.4 % instead of 7.2 % for the held average body (measured). AirPose's two far
@@ -191,6 +197,8 @@ class SmartmocapOptions:
             raise MocapgraphError(f"motion_prior {self.motion_prior!r}: choose one of {', '.join(MOTION_PRIORS)}")
         if not (len(self.covariance_model_error) == 3 and all(isinstance(k, (int, float)) and np.isfinite(k) and k >= 1 for k in self.covariance_model_error)):
             raise MocapgraphError(f"covariance_model_error: three finite variance factors >= 1 (joints, static cameras, moving cameras), got {self.covariance_model_error!r}")
+        if not (len(self.covariance_lever_error_rad) == 3 and all(isinstance(g, (int, float)) and 0 <= g <= 0.5 for g in self.covariance_lever_error_rad)):
+            raise MocapgraphError(f"covariance_lever_error_rad: three angles in [0, 0.5] rad (joints, static cameras, moving cameras), got {self.covariance_lever_error_rad!r}")
         if not (isinstance(self.chunk_size, int) and 2 <= self.chunk_size):
             raise MocapgraphError(f"chunk_size: a whole number of states >= 2, got {self.chunk_size!r}")
         if self.motion_prior == "vae" and self.chunk_size != WINDOW:
@@ -215,8 +223,7 @@ class SmartmocapOptions:
             raise MocapgraphError(f"workers: a whole number of processes >= 1, got {self.workers!r}")
         if self.cameras_from is not None and self.cameras_from not in CAMERA_SOURCES:
             raise MocapgraphError(f"cameras_from {self.cameras_from!r}: choose one of {', '.join(CAMERA_SOURCES)}")
-        if self.imu_max_offset_s is not None and not (isinstance(self.imu_max_offset_s, (int, float)) and 0 < self.imu_max_offset_s <= 1.0):
-            raise MocapgraphError(f"imu_max_offset_s: a number of seconds in (0, 1] or None, got {self.imu_max_offset_s!r}")
+        check_max_offset(self.imu_max_offset_s)
         if len(self.reference_sigmas) != 2 or not all(np.isfinite(v) and v > 0 for v in self.reference_sigmas):
             raise MocapgraphError(f"reference_sigmas: two finite numbers > 0 (rad, m), got {self.reference_sigmas!r}")
 
@@ -657,13 +664,14 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     )
     if options.covariances:
         cov_bg, cov_graph, cov_values = definition_graph(bg, options, learned, estimate, solved_final.values, offsets, imu, tracks)
-        result.covariances.update(with_model_error(cov_bg.covariances(cov_graph, cov_values, estimate, calibrate=True), cov_bg, options.covariance_model_error))
+        covariances = cov_bg.covariances(cov_graph, cov_values, estimate, calibrate=True)
+        result.covariances.update(with_model_error(covariances, result, capture, options.covariance_model_error, options.covariance_lever_error_rad))
         result.parameters["variance_factors"] = {g: round(float(s2), 4) for g, s2 in cov_bg.variance_factors.items()}
     result.parameters.update(
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes,
         focal_px=bg.focal_lengths(estimate), reprojection_px=reprojection,
         keypoint_offsets_m={fit.fmt: fit.as_table() for fit in fits} if options.keypoint_offsets else {},
-        imu_clock_offsets_s={model.names[c]: round(float(o), 5) for c, o in clock_offsets.items() if np.isfinite(o)},
+        imu_clock_offsets_s=clock_offset_parameters(model, clock_offsets),
     )
     return result
 
@@ -701,17 +709,43 @@ def definition_graph(
     return out, graph, merged
 
 
-def with_model_error(covariances: dict[str, np.ndarray], bg: BodyGraph, factors: tuple[float, float, float]) -> dict[str, np.ndarray]:
-    """``covariances`` (:meth:`BodyGraph.covariances`) times the variance ``factors`` of the joints
-    and root, the static cameras and the moving ones (``SmartmocapOptions.covariance_model_error``)."""
-    joints, static, moving = factors
+def lever_covariance(lever: np.ndarray) -> np.ndarray:
+    """``(..., 3, 3)``: the covariance of the displacement ``δθ × r`` of a point at ``lever`` (``(...,
+    3)``, metres from the pivot) under a small rotation ``δθ ~ N(0, I)`` (radians) about the pivot:
+    ``|r|² I − r rᵀ``."""
+    return (lever * lever).sum(-1)[..., None, None] * np.eye(3) - lever[..., :, None] * lever[..., None, :]
+
+
+def pose_lever_covariance(world_T_pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:
+    """``(N, 6, 6)``: the covariance in GTSAM's tangent of poses ``(N, 4, 4)`` (rotation first, both
+    in the pose's own frame) under a small world rotation ``δθ ~ N(0, I)`` about ``pivot (3,)``:
+    ``G Gᵀ`` with ``G = [Rᵀ; −Rᵀ [r]×]``, ``r`` the pose's position from the pivot."""
+    R, r = world_T_pose[:, :3, :3], world_T_pose[:, :3, 3] - pivot
+    cross = np.zeros(r.shape + (3,))
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+    cross -= np.swapaxes(cross, 1, 2)
+    G = np.concatenate([np.swapaxes(R, 1, 2), -np.swapaxes(R, 1, 2) @ cross], axis=1)
+    return G @ np.swapaxes(G, 1, 2)
+
+
+def with_model_error(
+    covariances: dict[str, np.ndarray], result: Result, capture: Capture, factors: tuple[float, float, float], lever_rad: tuple[float, float, float]
+) -> dict[str, np.ndarray]:  # fmt: skip
+    """``covariances`` (:meth:`BodyGraph.covariances`, of ``result``'s joints ``(T, 22, 3, 3)``,
+    root and cameras ``(N, 6, 6)``) with the model error added, per kind (joints and root, the
+    static cameras, the moving ones; ``SmartmocapOptions.covariance_model_error`` and
+    ``covariance_lever_error_rad``): each times its variance factor, plus a rotation by ``σ``
+    radians about the joints' centroid (:func:`lever_covariance`, :func:`pose_lever_covariance`)."""
+    (k_joints, k_static, k_moving), (s_joints, s_static, s_moving) = factors, lever_rad
+    centroid = np.nanmean(result.joints.reshape(-1, 3), axis=0)
     out = dict(covariances)
-    for key in ("joints", "root"):
-        out[key] = joints * covariances[key]
-    for c in bg.estimated:
-        key = f"camera:{bg.model.cameras[c].name}"
+    out["joints"] = k_joints * covariances["joints"] + s_joints**2 * lever_covariance(result.joints - centroid)
+    out["root"] = k_joints * covariances["root"] + s_joints**2 * pose_lever_covariance(result.root, centroid)
+    for name, track in result.cameras.items():
+        key = f"camera:{name}"
         if key in out:
-            out[key] = (moving if bg.model.cameras[c].moving else static) * covariances[key]
+            k, s = (k_moving, s_moving) if capture.camera(name).moving else (k_static, s_static)
+            out[key] = k * covariances[key] + s**2 * pose_lever_covariance(track.world_T_camera, centroid)
     return out
 
 
