@@ -248,9 +248,9 @@ def test_unmapped_points_are_not_reported(body):
 def test_offsets_measured_again_each_round_come_nearer_the_truth():
     """SmartMocap on ``rich`` (2 s, realistic faults, coco17's hips 30 mm lateral and 20 mm
     forward of the body's in the simulator): rounds that measure the offsets again on the body
-    the last one left, each shrinking only its correction, find more of the hips' offset, in
-    both parts, and put the pelvis nearer the truth (measured, one round against four: hips
-    13.4, -0.3, 3.5 -> 22.4, -0.8, 9.7 mm, MPE 2.43 -> 1.67 cm)."""
+    the last one left find more of the hips' offset, in both parts, and put the pelvis nearer
+    the truth (measured, one round against four: hips 13.4, -0.3, 3.5 -> 15.5, -0.7, 7.1 mm,
+    MPE 2.43 -> 2.07 cm)."""
     from mocapgraph.data_tools.evaluation.evaluate import evaluate
     from mocapgraph.data_tools.sim.detectors import KEYPOINT_DEFINITION_OFFSETS_M
     from mocapgraph.data_tools.sim.synthetic import synthesize

@@ -104,14 +104,12 @@ class SmartmocapOptions:
     offset_estimation: str = "alternation"
     offset_iterations: int = 15
     # Rounds of: views left out, the sequence solved again, the offsets measured again on it
-    # (with "joint": rounds only while more views show up). Each round recovers part of what
-    # the body's lean hid (rich, 6 s, seed 0, realistic faults: the coco17 hips' forward part,
-    # simulated 2 cm, came out 4.1, 6.5, 7.7, 8.6 mm over four measures): 4 rounds against 2
-    # took MPE 1.71 -> 1.50 cm, RA-MPJPE 3.37 -> 3.35, static cameras 1.15 -> 1.10 cm, and
-    # without faults RA-MPJPE 2.66 -> 2.47, static cameras 0.76 -> 0.72, MPE 1.00 -> 1.00 cm.
-    # 8 rounds took MPE on to 1.33 cm but the cameras back to 1.71 cm (static 1.16): the offsets
-    # drift along what the body cannot tell apart (knees' forward part -6.0 -> -9.9 mm,
-    # simulated +20; the hips' lateral past the truth).
+    # (with "joint": rounds only while more views show up). Each round recovers more of what the
+    # body's lean hid: on rich (10 s, seed 0, bench faults) 4 rounds against 2 took MPE with
+    # realistic faults 1.74 -> 1.53 cm (cameras 1.34 -> 1.32) and without faults RA-MPJPE
+    # 2.83 -> 2.65, cameras 0.91 -> 0.86 cm. 8 rounds (each shrinking only its correction) took
+    # MPE on (6 s: 1.33 cm) but the cameras back and the offsets drifting along what the body
+    # cannot tell apart (docs/smartmocap.md, "Keypoint-definition offsets").
     offset_rounds: int = 4
     # "fitted": a format measured on real footage (body.definition_priors: BlazePose on the lab
     # clip) starts the rounds at that table and its measures are shrunk towards it; "zero":
@@ -583,13 +581,12 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
                 solved_model = model.relabelled(bg.relabelled(estimate))
                 if not joint:
                     # measured again on a body that no longer leans towards the detector's
-                    # points, they come out nearer the truth each round; shrunk towards the
-                    # offsets that body was solved with, so only the round's correction is
-                    # shrunk: shrinking the whole offset towards zero (or the table) each round
-                    # held it at a fixed point short of the truth, the shrink compounding
-                    # with the body's lean (rich, 6 s: hips 2.1 cm lateral / 0.6 forward of
-                    # the simulated 3.0 / 2.0 after two rounds; 2.6 / 0.9 after four now)
-                    fits = [estimate_offsets(body, solved_model, estimate, fmt, offsets[fmt]) for fmt in model.formats]
+                    # points, they come out nearer the truth each round. Each measure is shrunk
+                    # towards zero (or the table), not towards the last round's offsets: that
+                    # (rich 6 s: MPE 1.50 cm with 4 rounds) let the lab clip's offsets, fitted
+                    # with its cameras held, drift along the limbs (ankles 1.4 -> 3.1 cm up,
+                    # heels 1.6 -> 3.3, reprojection 9.9 px), where the body's bone lengths trade with them
+                    fits = [estimate_offsets(body, solved_model, estimate, fmt, priors.get(fmt)) for fmt in model.formats]
                     offsets = {fit.fmt: fit.offsets for fit in fits}
         for fit in fits:
             notes.append(f"{fit.fmt} keypoints: definition offsets estimated from {int(fit.frames.max(initial=0))} frames, up to "
