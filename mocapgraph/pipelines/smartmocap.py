@@ -109,8 +109,13 @@ class SmartmocapOptions:
     offset_estimation: str = "alternation"
     offset_iterations: int = 15
     # Rounds of: views left out, the sequence solved again, the offsets measured again on it
-    # (with "joint": rounds only while more views show up).
-    offset_rounds: int = 2
+    # (with "joint": rounds only while more views show up). Each round recovers more of what the
+    # body's lean hid: on rich (10 s, seed 0, bench faults) 4 rounds against 2 took MPE with
+    # realistic faults 1.74 -> 1.53 cm (cameras 1.34 -> 1.32) and without faults RA-MPJPE
+    # 2.83 -> 2.65, cameras 0.91 -> 0.86 cm. 8 rounds (each shrinking only its correction) took
+    # MPE on (6 s: 1.33 cm) but the cameras back and the offsets drifting along what the body
+    # cannot tell apart (docs/smartmocap.md, "Keypoint-definition offsets").
+    offset_rounds: int = 4
     # "fitted": a format measured on real footage (body.definition_priors: BlazePose on the lab
     # clip) starts the rounds at that table and its measures are shrunk towards it; "zero":
     # every format starts from the first solve's measure, shrunk towards zero (the only choice
@@ -597,8 +602,11 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
                 solved_model = model.relabelled(bg.relabelled(estimate))
                 if not joint:
                     # measured again on a body that no longer leans towards the detector's
-                    # points, they come out nearer the truth each round (rich, 6 s: hips
-                    # 2.2 → 2.4 cm of the simulated 3.6 over four rounds, MPE 1.95 → 1.56 cm)
+                    # points, they come out nearer the truth each round. Each measure is shrunk
+                    # towards zero (or the table), not towards the last round's offsets: that
+                    # (rich 6 s: MPE 1.50 cm with 4 rounds) let the lab clip's offsets, fitted
+                    # with its cameras held, drift along the limbs (ankles 1.4 -> 3.1 cm up,
+                    # heels 1.6 -> 3.3, reprojection 9.9 px), where the body's bone lengths trade with them
                     fits = [estimate_offsets(body, solved_model, estimate, fmt, priors.get(fmt)) for fmt in model.formats]
                     offsets = {fit.fmt: fit.offsets for fit in fits}
         for fit in fits:
