@@ -22,17 +22,17 @@ from mocapgraph.body.keypoint_offsets import MIRROR
 FITTED_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] = {
     # MediaPipe Pose (BlazePose GHUM, full model) through `mocapgraph detect`, on the lab clip
     "blazepose33": {
-        "nose": (0.0, 0.0037, -0.0115),
-        "left_eye": (-0.0075, 0.0009, -0.0092),
-        "left_ear": (-0.0267, 0.0058, 0.0257),
-        "left_shoulder": (0.004, 0.0098, -0.0034),
-        "left_elbow": (-0.0102, 0.0028, -0.0072),
-        "left_wrist": (0.0058, 0.0015, 0.0115),
-        "left_hip": (-0.001, -0.0037, 0.0036),
-        "left_knee": (-0.0028, 0.0093, -0.0001),
-        "left_ankle": (0.0019, 0.0139, -0.0005),
-        "left_heel": (-0.0006, 0.0164, 0.0002),
-        "left_foot_index": (0.0004, 0.0029, -0.0091),
+        "nose": (0.0, 0.0048, -0.0089),
+        "left_eye": (-0.0074, 0.002, -0.0062),
+        "left_ear": (-0.0267, 0.0069, 0.0286),
+        "left_shoulder": (0.0051, 0.011, -0.0035),
+        "left_elbow": (-0.0087, 0.0099, -0.0185),
+        "left_wrist": (0.0007, -0.0033, 0.0184),
+        "left_hip": (-0.0004, -0.0079, -0.0058),
+        "left_knee": (-0.0051, 0.0127, 0.0111),
+        "left_ankle": (0.0012, 0.0238, -0.0012),
+        "left_heel": (0.0, 0.0249, 0.0008),
+        "left_foot_index": (0.0084, 0.0116, -0.0141),
     },
     # OpenPose BODY_25B as shipped in the pose2sim 0.8.4 wheel, on the lab's two-participant trial
     "openpose25b": {
@@ -57,7 +57,7 @@ PROVENANCE: dict[str, dict[str, str]] = {
     "blazepose33": {
         "clip": "tests/data/real (Pose2Sim Demo_MultiPerson, the largest person)",
         "command": "mocapgraph bench definitions --json (SmartMocap, lab intrinsics, cam01, cam02 and cam04 held at the lab's Calib.qca.txt, 4 offset rounds from zero)",
-        "date": "2026-11-25",
+        "date": "2026-11-25, fitted again after the seventh session's merges (entries moved up to 11 mm since the first fit: elbow, knee, ankle)",
     },
     "openpose25b": {
         "clip": "tests/data/real_body25b (pose2sim 0.8.4's OpenPose BODY_25B output of a two-participant trial in the same lab, the largest person)",
