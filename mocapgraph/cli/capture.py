@@ -129,8 +129,8 @@ def _image_sizes(cameras, videos, calibration) -> dict[str, tuple[int, int]]:
     if unknown:
         raise MocapgraphError(
             f"several people in the keypoints: following them across cameras needs each camera's image size, unknown for "
-            f"{', '.join(unknown)} (no video, no size in the calibration); give --videos or a calibration with image sizes, "
-            "or keep one person per file with --person INDEX"
+            f"{', '.join(unknown)} (no video, no size in the calibration); give the cameras' videos (--videos, or a Pose2Sim project's "
+            "videos/) or a calibration with image sizes, or keep one person per file with --person INDEX"
         )
     return sizes
 
