@@ -189,6 +189,23 @@ def test_several_people_are_followed_and_one_chosen_in_every_camera(tmp_path, sc
     assert people["chosen"] == 0 and all(len(p["tracks"]) == 3 for p in people["people"][:2])
 
 
+def test_following_people_needs_the_image_sizes(tmp_path, scene, capsys):
+    """OpenPose folders of two people each, without videos or a calibration: the image sizes the
+    association needs are unknown, and the import says so, naming the cameras, and writes nothing."""
+    argv = ["capture", "import", "--fps", "30", "--out", str(tmp_path / "cap")]
+    for cam in CAMERAS[:2]:
+        folder = tmp_path / cam
+        folder.mkdir()
+        own, child = projected(scene, cam, "openpose25"), projected(scene, cam, "openpose25", other=True)
+        for t in range(len(own)):
+            doc = {"people": [{"pose_keypoints_2d": p[t].ravel().tolist()} for p in (own, child)]}
+            (folder / f"{cam}_{t:012d}_keypoints.json").write_text(json.dumps(doc))
+        argv += ["--openpose", f"{cam}={folder}"]
+    code, out = run_cli(argv, capsys)
+    assert code == 2 and "needs each camera's image size, unknown for cam1, cam2" in out, out
+    assert not (tmp_path / "cap").exists()
+
+
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_every_format_from_the_point_count_or_format_flag(tmp_path, scene, capsys, fmt):
     written = make_project(tmp_path / "p", scene, fmt=fmt, pose_model=None)
