@@ -36,11 +36,11 @@ from mocapgraph.body import load_body_model
 from mocapgraph.body.definition_priors import PROVENANCE, prior_offsets
 from mocapgraph.body.labelling import SWAP_KINDS, part_name
 from mocapgraph.body.model import BodyModel
-from mocapgraph.body.rotations import axis_rotation
+from mocapgraph.body.rotations import axis_rotation, skew
 from mocapgraph.data_tools.evaluation.alignment import align_camera_centres
 from mocapgraph.data_tools.io.capture import Capture
 from mocapgraph.data_tools.io.result import Result, options_parameters
-from mocapgraph.errors import MocapgraphError
+from mocapgraph.errors import MocapgraphError, is_positive_number
 from mocapgraph.factors.keys import pose_key, root_key, shape_key
 from mocapgraph.graphs.body_graph import BodyGraph, GraphOptions, LearnedPriors, motion_windows
 from mocapgraph.graphs.camera_imu import check_max_offset, estimated_clock_offsets, start_from_gyroscopes
@@ -210,11 +210,11 @@ class SmartmocapOptions:
             raise MocapgraphError(f"chunk_size: the motion prior's windows are {WINDOW} states; use {WINDOW} or motion_prior 'none'")
         if self.offset_estimation not in OFFSET_ESTIMATIONS:
             raise MocapgraphError(f"offset_estimation {self.offset_estimation!r}: choose one of {', '.join(OFFSET_ESTIMATIONS)}")
-        if self.held_gm_sigma_px is not None and not (isinstance(self.held_gm_sigma_px, (int, float)) and np.isfinite(self.held_gm_sigma_px) and self.held_gm_sigma_px > 0):
+        if self.held_gm_sigma_px is not None and not is_positive_number(self.held_gm_sigma_px):
             raise MocapgraphError(f"held_gm_sigma_px: a finite number > 0 or None, got {self.held_gm_sigma_px!r}")
         if self.offset_prior not in OFFSET_PRIORS:
             raise MocapgraphError(f"offset_prior {self.offset_prior!r}: choose one of {', '.join(OFFSET_PRIORS)}")
-        if self.drift_sigmas_m is not None and not (len(self.drift_sigmas_m) == 3 and all(isinstance(v, (int, float)) and np.isfinite(v) and v > 0 for v in self.drift_sigmas_m)):
+        if self.drift_sigmas_m is not None and not (len(self.drift_sigmas_m) == 3 and all(is_positive_number(v) for v in self.drift_sigmas_m)):
             raise MocapgraphError(f"drift_sigmas_m: three finite numbers > 0 (metres) or None, got {self.drift_sigmas_m!r}")
         if not (isinstance(self.offset_rounds, int) and self.offset_rounds >= 1):
             raise MocapgraphError(f"offset_rounds: a whole number >= 1, got {self.offset_rounds!r}")
@@ -729,10 +729,7 @@ def pose_lever_covariance(world_T_pose: np.ndarray, pivot: np.ndarray) -> np.nda
     in the pose's own frame) under a small world rotation ``δθ ~ N(0, I)`` about ``pivot (3,)``:
     ``G Gᵀ`` with ``G = [Rᵀ; −Rᵀ [r]×]``, ``r`` the pose's position from the pivot."""
     R, r = world_T_pose[:, :3, :3], world_T_pose[:, :3, 3] - pivot
-    cross = np.zeros(r.shape + (3,))
-    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
-    cross -= np.swapaxes(cross, 1, 2)
-    G = np.concatenate([np.swapaxes(R, 1, 2), -np.swapaxes(R, 1, 2) @ cross], axis=1)
+    G = np.concatenate([np.swapaxes(R, 1, 2), -np.swapaxes(R, 1, 2) @ skew(r)], axis=1)
     return G @ np.swapaxes(G, 1, 2)
 
 
