@@ -579,3 +579,30 @@ def test_whole_body_vote_counts_cameras_and_lets_a_lone_camera_relabel():
     # camera 0's second detection (its newest) is its vote: one, then two of three cameras flipped
     assert vote([(0, True), (0, False), (1, False), (2, True)]) == ([True] * 4, 0)
     assert vote([(0, False), (0, True), (1, False), (2, True)]) == ([False] * 4, 2)
+
+
+def test_camera_prior_counts_say_what_each_frame_rested_on():
+    """``stats.camera_priors`` (AirCap rigs) counts, per camera, the frames resting on each source
+    that occurred: a UAV frame near its onboard estimate on ``self_pose``, one far from any sample
+    (an outage) on ``none`` (also counted ``no_prior``), a static camera on its calibration; a
+    camera not asked for any frame has no entry (it showed 0 / 0 before)."""
+    from dataclasses import replace
+
+    capture = synthesize("aircap", seed=0, duration_s=1.0)
+    uav, static = capture.cameras[0], capture.cameras[2]
+    pose = capture.ground_truth.cameras[static.name][0]
+    rig = replace(capture, cameras=[uav, capture.cameras[1], replace(static, moving=False, extrinsics=pose, mount=None, sensors={})])
+    fusion = OnlineFusion(static_rig(rig), OnlineOptions(bootstrap_s=1.0))
+    for f in stream(capture):
+        if f.timestamp > capture.cameras[0].timestamps[0] + 0.5:
+            break
+        fusion.update(f.camera, f.timestamp, f.keypoints, f.box, f.sensors, f.detector)
+    assert not fusion._bootstrapped
+    t = float(uav.timestamps[5])
+    seen = fusion._camera(0, t)
+    assert not seen.no_prior and np.linalg.norm(seen.pose[:3, 3] - capture.ground_truth.cameras[uav.name][5][:3, 3]) < 1.0
+    assert fusion._camera(0, t) is seen  # a frame is counted once
+    assert fusion._camera(0, t + 5.0).no_prior
+    held = fusion._camera(2, t)
+    assert np.array_equal(held.pose, pose)
+    assert fusion.stats.camera_priors == {uav.name: {"self_pose": 1, "none": 1}, static.name: {"calibration": 1}}

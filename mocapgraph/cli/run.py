@@ -143,7 +143,7 @@ def add_parsers(subparsers) -> None:
     for parser in (baseline, aircap, airpose, smartmocap):
         parser.set_defaults(func=cmd_run)
 
-    from mocapgraph.pipelines.online import BOOTSTRAP_MOTION_PRIORS, PRIOR_SOURCES, RIGS, UAV_BODY_SWAPS, OnlineOptions
+    from mocapgraph.pipelines.online import BOOTSTRAP_CAMERAS, BOOTSTRAP_MOTION_PRIORS, PRIOR_SOURCES, RIGS, UAV_BODY_SWAPS, OnlineOptions
     from mocapgraph.pipelines.online import CAMERA_MODES as ONLINE_CAMERAS
 
     online = command(
@@ -179,6 +179,14 @@ def add_parsers(subparsers) -> None:
     flags.add("gate_margin", "the gate's region of interest: the predicted body's box widened by this fraction of its height")
     flags.add("prior_timeout_s", "aircap: a UAV frame with no onboard-estimate sample this near its time is not used, seconds", flag="--prior-timeout")
     flags.add("bootstrap_motion_prior", "the motion prior in the bootstrap's batch solve", choices=BOOTSTRAP_MOTION_PRIORS)
+    flags.add(
+        "bootstrap_cameras", "aircap: the UAV cameras in the bootstrap's batch solve: refined near their priors with their whole-body "
+        "relabelling (as offline), or held at them", choices=BOOTSTRAP_CAMERAS,
+    )  # fmt: skip
+    flags.add(
+        "bootstrap_max_s", "aircap: a bootstrap whose batch relabels a UAV's whole body in its last 0.2 s waits 0.25 s more and solves "
+        "again, up to this long; rig: 2 s on aircap, none on uncalibrated rigs", flag="--bootstrap-max", type=_number_or_word, metavar="S|rig|none",
+    )  # fmt: skip
     flags.add("static_cameras", "uncalibrated rigs: static cameras refined in the window under a prior, or held at the bootstrap's estimate", choices=("refine", "hold"))
     flags.add("static_refine_s", "seconds a static camera is refined before it is held at its estimate (none: all along)", flag="--static-refine", type=_number_or_word, metavar="S|none")
     flags.add("shape", "body shape after the bootstrap: held, or refined in the window", choices=("hold", "refine"))

@@ -34,9 +34,11 @@ weak pose regulariser, and camera variables:
 
 **Bootstrap.** The first ``bootstrap_s`` seconds are buffered and solved in batch by the pipeline
 the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mode with the
-cameras at their onboard estimate, or :func:`~mocapgraph.pipelines.smartmocap.run_smartmocap`);
-its body shape is then held, its states and cameras start the smoother, and the buffered
-observations are replayed into it. Those states are flagged ``bootstrap`` in the results: their
+cameras near their onboard estimate and their whole-body relabelling, as offline, or
+:func:`~mocapgraph.pipelines.smartmocap.run_smartmocap`); an AirCap batch that still relabels a
+UAV's whole body at its end waits for more of the stream (``bootstrap_max_s``). Its body shape is
+then held, its states and cameras start the smoother, and the buffered observations are replayed
+into it. Those states are flagged ``bootstrap`` in the results: their
 starting values saw the whole bootstrap window.
 
 **The loop.** Observations are gathered per grid interval ``(t_i, t_{i+1}]``; the first one of a
@@ -110,6 +112,11 @@ RIGS = ("aircap", "smartmocap")
 CAMERA_MODES = ("refine", "prior")
 PRIOR_SOURCES = ("auto", "fused", "self_pose")
 UAV_BODY_SWAPS = ("minority", "none")
+BOOTSTRAP_CAMERAS = ("refine", "prior")
+# An AirCap bootstrap whose batch solve relabels a UAV's whole body in its last _SETTLED_S waits
+# _BOOTSTRAP_STEP_S more of the stream and solves again (bootstrap_max_s): the detectors' flips last
+# 0.2-0.6 s, and the batch decides one with frames on both sides of it
+_SETTLED_S, _BOOTSTRAP_STEP_S = 0.2, 0.25
 BOOTSTRAP_MOTION_PRIORS = ("vae", "none")
 # The shape the loop publishes (its state, the gate's and the results' joints) follows the refined
 # estimate once it moved this far (shape units; ~0.5 mm of height): each new shape costs a body
@@ -131,6 +138,19 @@ class OnlineOptions:
     lag_s: float = 1.0
     rate_hz: float = 30.0
     bootstrap_s: float = 1.0
+    # An AirCap bootstrap whose batch solve still relabels a UAV's whole body in its last 0.2 s (a
+    # detector's flip in progress: the batch saw one side of it) is extended by 0.25 s and solved
+    # again, up to this long ("rig": 2 s on AirCap rigs, None on uncalibrated ones; None: never).
+    # aircap 10 s seed 0 with a 1.25 s bootstrap: extended to 1.5 s, smoothed RA-MPJPE 0.0693 ->
+    # 0.0664 m (offline 0.0635); with 1 s it does not fire on seeds 0-2 (docs/online.md).
+    bootstrap_max_s: float | None | str = "rig"
+    # An AirCap bootstrap's UAV cameras in its batch solve: "refine", near their priors with their
+    # whole-body relabelling (the offline pipeline's handling of its detectors' flips), or "prior":
+    # held at them, no whole-body relabelling. Held, a flip in most views turned the body round
+    # (seed 0: 120-150 deg off at 0.7-1.2 s, and the loop took until 1.6 s to unwind it); aircap
+    # 10 s smoothed RA-MPJPE seeds 0-2 0.0781 / 0.0682 / 0.0755 -> 0.0722 / 0.0683 / 0.0772 m
+    # (docs/online.md, "The bootstrap's hand-off"). The loop holds them at their priors either way.
+    bootstrap_cameras: str = "refine"
     # "refine" measured worse than "prior" on aircap (docs/online.md): per-frame camera variables
     # near the onboard estimate drifted with the body's whole-body relabellings
     cameras: str = "prior"
@@ -283,6 +303,10 @@ class OnlineOptions:
             raise MocapgraphError(f"static_camera_sigmas: (radians, metres), two finite numbers > 0, got {sigmas!r}")
         if self.cameras not in CAMERA_MODES:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
+        if self.bootstrap_cameras not in BOOTSTRAP_CAMERAS:
+            raise MocapgraphError(f"bootstrap_cameras {self.bootstrap_cameras!r}: choose one of {', '.join(BOOTSTRAP_CAMERAS)}")
+        if not (self.bootstrap_max_s is None or self.bootstrap_max_s == "rig" or is_positive_number(self.bootstrap_max_s)):
+            raise MocapgraphError(f"bootstrap_max_s: a finite number of seconds > 0, 'rig' or None, got {self.bootstrap_max_s!r}")
         if self.uav_body_swaps not in UAV_BODY_SWAPS:
             raise MocapgraphError(f"uav_body_swaps {self.uav_body_swaps!r}: choose one of {', '.join(UAV_BODY_SWAPS)}")
         if self.bootstrap_motion_prior not in BOOTSTRAP_MOTION_PRIORS:
@@ -328,11 +352,18 @@ class OnlineStats:
     unplaced: int = 0
     no_prior: int = 0  # UAV camera frames without an onboard estimate near their time, not used
     coasting: int = 0  # UAV camera frames whose fused prior rested on the IMU alone (no GPS fix within navigation.gps_timeout_s)
-    camera_priors: dict[str, dict[str, int]] = field(default_factory=dict)  # camera → {"fused" | "self_pose": frames}
+    # AirCap rigs, camera → {source: frames}, the sources its frames' poses rested on (only those that
+    # occurred): "self_pose" (the onboard estimate), "fused" (its vehicle's GPS/IMU fusion),
+    # "calibration" (a static camera held at it), "bootstrap" (no prior: the bootstrap's estimate),
+    # "body" (no prior: its previous frame or a resection on the body), "none" (no prior, not used:
+    # an outage, counted no_prior, or a camera the loop could not place)
+    camera_priors: dict[str, dict[str, int]] = field(default_factory=dict)
     solver_resets: int = 0  # smoother updates that threw; the window restarted from the tracker's prediction
     relabelled: int = 0
     body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many cameras of their update took one as not (uav_body_swaps)
-    bootstrap_seconds: float = 0.0
+    bootstrap_seconds: float = 0.0  # every batch solve of the bootstrap, wall clock
+    bootstrap_span_s: float = 0.0  # the stream's seconds the bootstrap buffered and solved
+    bootstrap_solves: int = 0  # batch solves of the bootstrap (more than one: extended, bootstrap_max_s)
     bootstrap_observations: int = 0
     busy_seconds: float = 0.0  # inside update() after the bootstrap, wall clock
     busy_cpu_seconds: float = 0.0  # the same calls' CPU time (this thread): what the loop costs, other jobs on the machine aside
@@ -354,7 +385,7 @@ class OnlineStats:
         return {
             "observations": self.observations, "used": self.used, "late_used": self.late_used, "late_dropped": self.late_dropped,
             "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
-            "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3),
+            "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3), "bootstrap_span_s": round(self.bootstrap_span_s, 3), "bootstrap_solves": self.bootstrap_solves,
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "latency_cpu_ms": {q: round(float(np.percentile(cpu, p)), 2) if len(cpu) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "offset_updates_ms": [round(1e3 * x, 1) for x in self.offset_update_seconds],
@@ -480,6 +511,10 @@ class OnlineFusion:
             if options.hips_sigma_rad_s2 is not None:
                 sigmas[[JOINT_NAMES.index("left_hip") - 1, JOINT_NAMES.index("right_hip") - 1]] = options.hips_sigma_rad_s2
             self._pose_sigma_rad_s2 = sigmas.ravel()
+        longest = options.bootstrap_max_s
+        longest = (2.0 if self.kind == "aircap" else None) if longest == "rig" else longest
+        self._bootstrap_max_s = options.bootstrap_s if longest is None else max(float(longest), options.bootstrap_s)
+        self._bootstrap_until = options.bootstrap_s  # seconds of stream the bootstrap waits for (extended while unresolved)
         unmodelled = options.unmodelled_sigma_rad
         self._graph = replace(options.graph, unmodelled_sigma_rad=(0.2 if self.kind == "aircap" else None) if unmodelled == "rig" else unmodelled)
         self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
@@ -537,7 +572,6 @@ class OnlineFusion:
         self._body_votes: list[tuple[int, Labelling, gtsam.NonlinearFactor, bool]] = []  # UAV detections of the update that may relabel their whole body (and whether their prior is the fusion's)
         self._pending_values = gtsam.Values()
         self._pending_stamps: dict[int, float] = {}
-        self._counts: dict[int, int] = {}
         self.filtered: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.smoothed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.filtered_cameras: dict[int, dict[float, np.ndarray]] = {c: {} for c in range(len(self.rig.cameras))}
@@ -600,8 +634,7 @@ class OnlineFusion:
             self.t0 = t
         if not self._bootstrapped:
             self._buffer.append(frame)
-            if t - self.t0 >= self.options.bootstrap_s:
-                self._bootstrap()
+            if t - self.t0 >= self._bootstrap_until and self._bootstrap():
                 return self.state(updated=True)
             return self.state()
         if self._offset_times:
@@ -634,7 +667,7 @@ class OnlineFusion:
                 for k in range(len(out[kind]["t"])):
                     kept.append((float(out[kind]["t"][k]), out[kind]["rotation"][k], out[kind]["position"][k]))
                 # what a frame still to come may need: late frames within the lag, the bootstrap's replay
-                horizon = self.options.lag_s + self.options.bootstrap_s + 1.0
+                horizon = self.options.lag_s + self._bootstrap_max_s + 1.0
                 while kept and kept[0][0] < kept[-1][0] - horizon:
                     kept.popleft()
         return out
@@ -671,9 +704,12 @@ class OnlineFusion:
             cameras.append(replace(cam, timestamps=times, detectors=detectors, sensors=sensors))
         return replace(self.rig, cameras=[cam for cam in cameras if cam.num_frames])
 
-    def _bootstrap(self) -> None:
+    def _bootstrap(self, final: bool = False) -> bool:
         """The buffered stream solved in batch by the rig's pipeline; its states and cameras start
-        the smoother, and the buffered observations are replayed into it."""
+        the smoother, and the buffered observations are replayed into it. Returns whether the loop
+        started: an AirCap batch that relabels a UAV's whole body in its last ``_SETTLED_S`` (a
+        detector's flip in progress at its end) waits ``_BOOTSTRAP_STEP_S`` more of the stream,
+        up to ``bootstrap_max_s`` (``final``: the stream ended, the loop starts from this one)."""
         from mocapgraph.pipelines.aircap import AircapOptions, resample, run_aircap
         from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
 
@@ -682,12 +718,14 @@ class OnlineFusion:
         detectors = tuple(dict.fromkeys(f.detector for f in self._buffer))
         o = self.options
         if self.kind == "aircap":
-            # the cameras held where the loop's priors put them: the fusion's first solve is the
-            # offline fusion of the same logs
+            # the cameras' priors are the loop's: the fusion's first solve is the offline fusion of
+            # the same logs
             fused = self._navigation and o.camera_priors == "fused" and all(c in self._navigation for c, cam in enumerate(self.rig.cameras) if cam.mount is not None)
+            refine = o.bootstrap_cameras == "refine"
             options = AircapOptions(
-                mode="sequence", cameras="fixed", prior_source="fused" if fused else "online", sync="grid", grid_hz=o.rate_hz, detectors=detectors,
-                covariances=False, workers=1, graph=replace(self._graph, focal="fixed", shape="estimate"), motion_prior=o.bootstrap_motion_prior if o.rate_hz == 30.0 else "none",
+                mode="sequence", cameras="refine" if refine else "fixed", prior_source="fused" if fused else "online", sync="grid", grid_hz=o.rate_hz,
+                detectors=detectors, covariances=False, workers=1, graph=replace(self._graph, focal="fixed", shape="estimate", moving_body_swaps=refine),
+                motion_prior=o.bootstrap_motion_prior if o.rate_hz == 30.0 else "none",
             )  # fmt: skip
             result = run_aircap(mini, options)
         else:
@@ -697,6 +735,13 @@ class OnlineFusion:
                 graph=replace(SmartmocapOptions().graph, focal="fixed", swaps=o.graph.swaps),
             )  # fmt: skip
             result = run_smartmocap(mini, options)
+        self.stats.bootstrap_seconds += time.perf_counter() - start
+        self.stats.bootstrap_solves += 1
+        span = self._buffer[-1].timestamp - self.t0
+        if not final and span + _BOOTSTRAP_STEP_S <= self._bootstrap_max_s + _SNAP and self._flip_at_the_end(result, self._buffer[-1].timestamp):
+            self._bootstrap_until = span + _BOOTSTRAP_STEP_S
+            log.info("online: the bootstrap's batch relabels a UAV's whole body in its last %.1f s; waiting until %.2f s", _SETTLED_S, self._bootstrap_until)
+            return False
         self.shape = np.asarray(result.shape, dtype=float)
         self._keypoint_offsets = {fmt: offsets_from_table(fmt, table) for fmt, table in result.parameters.get("keypoint_offsets_m", {}).items()}
         self._caches.clear()
@@ -722,9 +767,9 @@ class OnlineFusion:
         if o.shape == "refine":
             self._shape_key = shape_key()
         self._bootstrapped = True
-        self.stats.bootstrap_seconds = time.perf_counter() - start
+        self.stats.bootstrap_span_s = span
         self.stats.bootstrap_observations = len(self._buffer)
-        log.info("online: bootstrap of %.2f s (%d states, %s) in %.1f s", self._buffer[-1].timestamp - self.t0, n, self.kind, self.stats.bootstrap_seconds)
+        log.info("online: bootstrap of %.2f s (%d states, %s) in %.1f s", span, n, self.kind, self.stats.bootstrap_seconds)
         # One smoother update with every buffered observation, from the batch solution: replayed
         # an interval at a time, the first updates saw a state or two and one or two views,
         # and iSAM2's undamped Gauss-Newton steps threw them metres off (measured).
@@ -737,6 +782,19 @@ class OnlineFusion:
             self._add_observation(self.index[frame.camera], frame, i, a)
         self._flush()
         self.stats.batches = 0  # the bootstrap's update is one by construction
+        return True
+
+    def _flip_at_the_end(self, result: Result, end: float) -> bool:
+        """Whether the batch ``result`` relabels a moving camera's whole body in a frame of its last
+        ``_SETTLED_S`` before ``end`` (AirCap rigs)."""
+        if self.kind != "aircap":
+            return False
+        body = SWAP_KINDS.index("body")
+        for name, track in result.cameras.items():
+            if track.swaps is not None and self.rig.cameras[self.index[name]].moving:
+                if np.any((track.swaps == body) & (np.asarray(track.timestamps) > end - _SETTLED_S)):
+                    return True
+        return False
 
     # -- the loop -------------------------------------------------------------------------------
 
@@ -853,9 +911,7 @@ class OnlineFusion:
         cam = self.rig.cameras[c]
         nav = self._navigation.get(c)
         fused = nav.camera_prior(t) if nav is not None else None
-        counts = self.stats.camera_priors.setdefault(cam.name, {"fused": 0, "self_pose": 0})
         if fused is not None:
-            counts["fused"] += 1
             return fused.world_T_camera, fused.covariance, fused.coasting, True
         samples = self._self_pose[c]
         if cam.mount is None or not samples:
@@ -867,8 +923,13 @@ class OnlineFusion:
         near = [samples[j] for j in range(max(k - 2, 0), min(k + 2, len(samples)))]  # the neighbours online_track interpolates
         log_ = {"self_pose": {"t": np.array([s[0] for s in near]), "rotation": np.array([s[1] for s in near]), "position": np.array([s[2] for s in near])}}
         track = online_track(log_, cam.mount, np.array([t]), cam.name, noise=self.options.online_noise)
-        counts["self_pose"] += 1
         return track.world_T_camera[0], track.covariance[0], False, False
+
+    def _count_source(self, c: int, source: str) -> None:
+        """One more frame of camera ``c`` resting on ``source`` (:attr:`OnlineStats.camera_priors`; AirCap rigs)."""
+        if self.kind == "aircap":
+            counts = self.stats.camera_priors.setdefault(self.rig.cameras[c].name, {})
+            counts[source] = counts.get(source, 0) + 1
 
     def _camera(self, c: int, t: float, seen: tuple[np.ndarray, str, int, float] | None = None) -> _Frame | None:
         """Camera ``c``'s frame at ``t``: held, or a variable (created with its priors and
@@ -880,6 +941,7 @@ class OnlineFusion:
         if t in frames:
             return frames[t]
         if c in self._fixed:
+            self._count_source(c, "calibration")
             frames[t] = _Frame(None, self._fixed[c], t)
             return frames[t]
         if c in self._static_keys:
@@ -902,13 +964,19 @@ class OnlineFusion:
             # no onboard estimate near t (an outage): a UAV camera's pose from the body alone was
             # too weak (one view of a person 10 m off; the body's error doubled on aircap), so its
             # frames wait for the estimate to come back
+            self._count_source(c, "none")
             frames[t] = _Frame(None, np.full((4, 4), np.nan), t, no_prior=True)
             return frames[t]
         previous = max((f for f in frames.values() if f.time < t), key=lambda f: f.time, default=None)
         if prior is None and seed is None and previous is None:
             seed = self._resect(c, *seen) if seen is not None and cam.moving else None
             if seed is None:
+                self._count_source(c, "none")
                 return None
+        if prior is not None:
+            self._count_source(c, "fused" if prior[3] else "self_pose")
+        else:
+            self._count_source(c, "bootstrap" if seed is not None and t in self._seed_cameras.get(c, {}) else "body")
         if prior is not None and o.cameras == "prior":
             frames[t] = _Frame(None, prior[0], t, coasting=prior[2], fused=prior[3])
             return frames[t]
@@ -1383,7 +1451,7 @@ class OnlineFusion:
     def finish(self) -> None:
         """End of stream: close the open interval and take every state still in the window as smoothed."""
         if not self._bootstrapped and self._buffer:
-            self._bootstrap()
+            self._bootstrap(final=True)
         if self.open is None:
             return
         self._flush()
@@ -1468,6 +1536,12 @@ def run_online(
     return OnlineRun(filtered, smoothed, fusion.stats, seconds)
 
 
+_SOURCE_NAMES = {
+    "self_pose": "the onboard estimate", "fused": "the GPS/IMU fusion", "calibration": "its calibration", "bootstrap": "the bootstrap's estimate",
+    "body": "the body (no prior)", "none": "nothing (not used)",
+}  # fmt: skip
+
+
 def summary(run: OnlineRun) -> str:
     """The lines ``run online`` prints at the end."""
     s = run.stats.summary()
@@ -1480,5 +1554,5 @@ def summary(run: OnlineRun) -> str:
         f"  observations {s['observations']}: used {s['used']} (late {s['late_used']}), dropped late {s['late_dropped']}, "
         f"gated {s['gated']}, unplaced {s['unplaced']}, empty {s['empty']}; relabelled {s['relabelled']}"
     ) + "".join(
-        f"\n  camera {name}: prior from the GPS/IMU fusion for {n['fused']} frames, the onboard estimate for {n['self_pose']}" for name, n in s["camera_priors"].items()
+        f"\n  camera {name}: " + ", ".join(f"{n} frames on {_SOURCE_NAMES[source]}" for source, n in counts.items()) for name, counts in s["camera_priors"].items()
     ) + (f"\n  {s['coasting']} frames on a fusion coasting on the IMU (no GPS fix), {s['no_prior']} without a prior" if s["coasting"] or s["no_prior"] else "")
