@@ -174,14 +174,14 @@ def test_run_online_flags_set_the_options_and_bad_values_are_one_error(tmp_path,
 
     out = tmp_path / "out"
     base = ["run", "online", str(tmp_path / "capture"), "--out", str(out)]
-    args = build_parser().parse_args(base + ["--uav-body-swaps", "none", "--unmodelled-sigma", "0.3", "--pose-sigma", "none", "--hips-sigma", "40", "--static-refine", "none", "--coast", "0.8", "--bootstrap-cameras", "prior", "--bootstrap-max", "1.5"])
+    args = build_parser().parse_args(base + ["--uav-body-swaps", "none", "--unmodelled-sigma", "0.3", "--pose-sigma", "none", "--hips-sigma", "40", "--static-refine", "none", "--coast", "0.8", "--bootstrap-cameras", "prior"])
     options = args.options_from(args)
     assert (options.uav_body_swaps, options.unmodelled_sigma_rad, options.pose_sigma_rad_s2, options.hips_sigma_rad_s2) == ("none", 0.3, None, 40.0)
-    assert (options.static_refine_s, options.coast_s, options.bootstrap_cameras, options.bootstrap_max_s) == (None, 0.8, "prior", 1.5)
+    assert (options.static_refine_s, options.coast_s, options.bootstrap_cameras) == (None, 0.8, "prior")
     options.check()
     defaults = build_parser().parse_args(base)
     assert defaults.options_from(defaults) == OnlineOptions()
-    for flag, value, field in (("--unmodelled-sigma", "wide", "unmodelled_sigma_rad"), ("--hips-sigma", "-1", "hips_sigma_rad_s2"), ("--static-refine", "0", "static_refine_s"), ("--bootstrap-max", "-1", "bootstrap_max_s")):
+    for flag, value, field in (("--unmodelled-sigma", "wide", "unmodelled_sigma_rad"), ("--hips-sigma", "-1", "hips_sigma_rad_s2"), ("--static-refine", "0", "static_refine_s")):
         assert main(base + [flag, value]) == 2
         err = capsys.readouterr().err
         assert err.startswith("mocapgraph: error: ") and field in err and "Traceback" not in err, err

@@ -180,12 +180,8 @@ def add_parsers(subparsers) -> None:
     flags.add("prior_timeout_s", "aircap: a UAV frame with no onboard-estimate sample this near its time is not used, seconds", flag="--prior-timeout")
     flags.add("bootstrap_motion_prior", "the motion prior in the bootstrap's batch solve", choices=BOOTSTRAP_MOTION_PRIORS)
     flags.add(
-        "bootstrap_cameras", "aircap: the UAV cameras in the bootstrap's batch solve: refined near their priors with their whole-body "
-        "relabelling (as offline), or held at them", choices=BOOTSTRAP_CAMERAS,
-    )  # fmt: skip
-    flags.add(
-        "bootstrap_max_s", "aircap: a bootstrap whose batch relabels a UAV's whole body in its last 0.2 s waits 0.25 s more and solves "
-        "again, up to this long; rig: 2 s on aircap, none on uncalibrated rigs", flag="--bootstrap-max", type=_number_or_word, metavar="S|rig|none",
+        "bootstrap_cameras", "aircap: the bootstrap's batch with the UAV cameras held at their priors (prior), checked by a second "
+        "with them refined and their whole-body relabelling, taken where the two headings end more than 90 deg apart (check)", choices=BOOTSTRAP_CAMERAS,
     )  # fmt: skip
     flags.add("static_cameras", "uncalibrated rigs: static cameras refined in the window under a prior, or held at the bootstrap's estimate", choices=("refine", "hold"))
     flags.add("static_refine_s", "seconds a static camera is refined before it is held at its estimate (none: all along)", flag="--static-refine", type=_number_or_word, metavar="S|none")

@@ -34,11 +34,10 @@ weak pose regulariser, and camera variables:
 
 **Bootstrap.** The first ``bootstrap_s`` seconds are buffered and solved in batch by the pipeline
 the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mode with the
-cameras near their onboard estimate and their whole-body relabelling, as offline, or
-:func:`~mocapgraph.pipelines.smartmocap.run_smartmocap`); an AirCap batch that still relabels a
-UAV's whole body at its end waits for more of the stream (``bootstrap_max_s``). Its body shape is
-then held, its states and cameras start the smoother, and the buffered observations are replayed
-into it. Those states are flagged ``bootstrap`` in the results: their
+cameras held at their onboard estimate, checked by a second batch with them refined near it and
+their whole-body relabelling, as offline: ``bootstrap_cameras``; or
+:func:`~mocapgraph.pipelines.smartmocap.run_smartmocap`). Its body shape is then held, its states
+and cameras start the smoother, and the buffered observations are replayed into it. Those states are flagged ``bootstrap`` in the results: their
 starting values saw the whole bootstrap window.
 
 **The loop.** Observations are gathered per grid interval ``(t_i, t_{i+1}]``; the first one of a
@@ -112,11 +111,8 @@ RIGS = ("aircap", "smartmocap")
 CAMERA_MODES = ("refine", "prior")
 PRIOR_SOURCES = ("auto", "fused", "self_pose")
 UAV_BODY_SWAPS = ("minority", "none")
-BOOTSTRAP_CAMERAS = ("refine", "prior")
-# An AirCap bootstrap whose batch solve relabels a UAV's whole body in its last _SETTLED_S waits
-# _BOOTSTRAP_STEP_S more of the stream and solves again (bootstrap_max_s): the detectors' flips last
-# 0.2-0.6 s, and the batch decides one with frames on both sides of it
-_SETTLED_S, _BOOTSTRAP_STEP_S = 0.2, 0.25
+BOOTSTRAP_CAMERAS = ("check", "prior")
+_HAND_OFF_S = 0.2  # the bootstrap's last states, where its two batches' headings are compared (bootstrap_cameras)
 BOOTSTRAP_MOTION_PRIORS = ("vae", "none")
 # The shape the loop publishes (its state, the gate's and the results' joints) follows the refined
 # estimate once it moved this far (shape units; ~0.5 mm of height): each new shape costs a body
@@ -138,19 +134,17 @@ class OnlineOptions:
     lag_s: float = 1.0
     rate_hz: float = 30.0
     bootstrap_s: float = 1.0
-    # An AirCap bootstrap whose batch solve still relabels a UAV's whole body in its last 0.2 s (a
-    # detector's flip in progress: the batch saw one side of it) is extended by 0.25 s and solved
-    # again, up to this long ("rig": 2 s on AirCap rigs, None on uncalibrated ones; None: never).
-    # aircap 10 s seed 0 with a 1.25 s bootstrap: extended to 1.5 s, smoothed RA-MPJPE 0.0693 ->
-    # 0.0664 m (offline 0.0635); with 1 s it does not fire on seeds 0-2 (docs/online.md).
-    bootstrap_max_s: float | None | str = "rig"
-    # An AirCap bootstrap's UAV cameras in its batch solve: "refine", near their priors with their
-    # whole-body relabelling (the offline pipeline's handling of its detectors' flips), or "prior":
-    # held at them, no whole-body relabelling. Held, a flip in most views turned the body round
-    # (seed 0: 120-150 deg off at 0.7-1.2 s, and the loop took until 1.6 s to unwind it); aircap
-    # 10 s smoothed RA-MPJPE seeds 0-2 0.0781 / 0.0682 / 0.0755 -> 0.0722 / 0.0683 / 0.0772 m
-    # (docs/online.md, "The bootstrap's hand-off"). The loop holds them at their priors either way.
-    bootstrap_cameras: str = "refine"
+    # An AirCap bootstrap's batch: "prior", the UAV cameras held at their priors (no whole-body
+    # relabelling), as the loop holds them; "check", that batch and a second one with the cameras
+    # refined near their priors and their whole-body relabelling (the offline pipeline's handling of
+    # its detectors' flips): where their headings over the last 0.2 s are more than 90 deg apart, the
+    # held batch was turned round by a flip in most views (aircap 10 s seed 0: 120-150 deg off at
+    # 0.7-1.2 s, unwound by 1.6 s) and the loop starts from the refined one. Not the refined batch
+    # always: its cameras move 0.3-0.65 m to explain flips (held: 0.25-0.3 m from the truth), its
+    # states are then off the held cameras, and the loop lost the body in a later flip (aircap 3 s
+    # seed 0: smoothed RA-MPJPE 0.0846 against 0.0685 m). A second batch solve (~1.5x the bootstrap's time).
+    # aircap 10 s smoothed RA-MPJPE, seeds 0-2: 0.0781 / 0.0682 / 0.0755 -> see docs/online.md.
+    bootstrap_cameras: str = "check"
     # "refine" measured worse than "prior" on aircap (docs/online.md): per-frame camera variables
     # near the onboard estimate drifted with the body's whole-body relabellings
     cameras: str = "prior"
@@ -305,8 +299,6 @@ class OnlineOptions:
             raise MocapgraphError(f"cameras {self.cameras!r}: choose one of {', '.join(CAMERA_MODES)}")
         if self.bootstrap_cameras not in BOOTSTRAP_CAMERAS:
             raise MocapgraphError(f"bootstrap_cameras {self.bootstrap_cameras!r}: choose one of {', '.join(BOOTSTRAP_CAMERAS)}")
-        if not (self.bootstrap_max_s is None or self.bootstrap_max_s == "rig" or is_positive_number(self.bootstrap_max_s)):
-            raise MocapgraphError(f"bootstrap_max_s: a finite number of seconds > 0, 'rig' or None, got {self.bootstrap_max_s!r}")
         if self.uav_body_swaps not in UAV_BODY_SWAPS:
             raise MocapgraphError(f"uav_body_swaps {self.uav_body_swaps!r}: choose one of {', '.join(UAV_BODY_SWAPS)}")
         if self.bootstrap_motion_prior not in BOOTSTRAP_MOTION_PRIORS:
@@ -361,9 +353,8 @@ class OnlineStats:
     solver_resets: int = 0  # smoother updates that threw; the window restarted from the tracker's prediction
     relabelled: int = 0
     body_swaps_refused: int = 0  # UAV detections' whole-body relabellings refused: as many cameras of their update took one as not (uav_body_swaps)
-    bootstrap_seconds: float = 0.0  # every batch solve of the bootstrap, wall clock
-    bootstrap_span_s: float = 0.0  # the stream's seconds the bootstrap buffered and solved
-    bootstrap_solves: int = 0  # batch solves of the bootstrap (more than one: extended, bootstrap_max_s)
+    bootstrap_seconds: float = 0.0  # the bootstrap's batch solves, wall clock
+    bootstrap_refined: bool = False  # an AirCap bootstrap started the loop from its batch with the cameras refined (bootstrap_cameras)
     bootstrap_observations: int = 0
     busy_seconds: float = 0.0  # inside update() after the bootstrap, wall clock
     busy_cpu_seconds: float = 0.0  # the same calls' CPU time (this thread): what the loop costs, other jobs on the machine aside
@@ -385,7 +376,7 @@ class OnlineStats:
         return {
             "observations": self.observations, "used": self.used, "late_used": self.late_used, "late_dropped": self.late_dropped,
             "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
-            "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3), "bootstrap_span_s": round(self.bootstrap_span_s, 3), "bootstrap_solves": self.bootstrap_solves,
+            "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3), "bootstrap_refined": self.bootstrap_refined,
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "latency_cpu_ms": {q: round(float(np.percentile(cpu, p)), 2) if len(cpu) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "offset_updates_ms": [round(1e3 * x, 1) for x in self.offset_update_seconds],
@@ -511,10 +502,6 @@ class OnlineFusion:
             if options.hips_sigma_rad_s2 is not None:
                 sigmas[[JOINT_NAMES.index("left_hip") - 1, JOINT_NAMES.index("right_hip") - 1]] = options.hips_sigma_rad_s2
             self._pose_sigma_rad_s2 = sigmas.ravel()
-        longest = options.bootstrap_max_s
-        longest = (2.0 if self.kind == "aircap" else None) if longest == "rig" else longest
-        self._bootstrap_max_s = options.bootstrap_s if longest is None else max(float(longest), options.bootstrap_s)
-        self._bootstrap_until = options.bootstrap_s  # seconds of stream the bootstrap waits for (extended while unresolved)
         unmodelled = options.unmodelled_sigma_rad
         self._graph = replace(options.graph, unmodelled_sigma_rad=(0.2 if self.kind == "aircap" else None) if unmodelled == "rig" else unmodelled)
         self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
@@ -634,7 +621,8 @@ class OnlineFusion:
             self.t0 = t
         if not self._bootstrapped:
             self._buffer.append(frame)
-            if t - self.t0 >= self._bootstrap_until and self._bootstrap():
+            if t - self.t0 >= self.options.bootstrap_s:
+                self._bootstrap()
                 return self.state(updated=True)
             return self.state()
         if self._offset_times:
@@ -667,7 +655,7 @@ class OnlineFusion:
                 for k in range(len(out[kind]["t"])):
                     kept.append((float(out[kind]["t"][k]), out[kind]["rotation"][k], out[kind]["position"][k]))
                 # what a frame still to come may need: late frames within the lag, the bootstrap's replay
-                horizon = self.options.lag_s + self._bootstrap_max_s + 1.0
+                horizon = self.options.lag_s + self.options.bootstrap_s + 1.0
                 while kept and kept[0][0] < kept[-1][0] - horizon:
                     kept.popleft()
         return out
@@ -704,12 +692,13 @@ class OnlineFusion:
             cameras.append(replace(cam, timestamps=times, detectors=detectors, sensors=sensors))
         return replace(self.rig, cameras=[cam for cam in cameras if cam.num_frames])
 
-    def _bootstrap(self, final: bool = False) -> bool:
+    def _bootstrap(self) -> None:
         """The buffered stream solved in batch by the rig's pipeline; its states and cameras start
-        the smoother, and the buffered observations are replayed into it. Returns whether the loop
-        started: an AirCap batch that relabels a UAV's whole body in its last ``_SETTLED_S`` (a
-        detector's flip in progress at its end) waits ``_BOOTSTRAP_STEP_S`` more of the stream,
-        up to ``bootstrap_max_s`` (``final``: the stream ended, the loop starts from this one)."""
+        the smoother, and the buffered observations are replayed into it. On an AirCap rig a second
+        batch with the UAV cameras refined near their priors and their whole-body relabelling (as
+        offline) checks the first one, held at the priors: where their headings at the end are more
+        than 90 deg apart, the held one was turned round by a whole-body flip in most views, and
+        the loop starts from the refined one (``bootstrap_cameras="check"``)."""
         from mocapgraph.pipelines.aircap import AircapOptions, resample, run_aircap
         from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
 
@@ -721,13 +710,17 @@ class OnlineFusion:
             # the cameras' priors are the loop's: the fusion's first solve is the offline fusion of
             # the same logs
             fused = self._navigation and o.camera_priors == "fused" and all(c in self._navigation for c, cam in enumerate(self.rig.cameras) if cam.mount is not None)
-            refine = o.bootstrap_cameras == "refine"
-            options = AircapOptions(
-                mode="sequence", cameras="refine" if refine else "fixed", prior_source="fused" if fused else "online", sync="grid", grid_hz=o.rate_hz,
-                detectors=detectors, covariances=False, workers=1, graph=replace(self._graph, focal="fixed", shape="estimate", moving_body_swaps=refine),
-                motion_prior=o.bootstrap_motion_prior if o.rate_hz == 30.0 else "none",
+            held = AircapOptions(
+                mode="sequence", cameras="fixed", prior_source="fused" if fused else "online", sync="grid", grid_hz=o.rate_hz, detectors=detectors,
+                covariances=False, workers=1, graph=replace(self._graph, focal="fixed", shape="estimate"), motion_prior=o.bootstrap_motion_prior if o.rate_hz == 30.0 else "none",
             )  # fmt: skip
-            result = run_aircap(mini, options)
+            result = run_aircap(mini, held)
+            if o.bootstrap_cameras == "check":
+                refined = run_aircap(mini, replace(held, cameras="refine", graph=replace(held.graph, moving_body_swaps=True)))
+                turned = _heading_apart_rad(result, refined, _HAND_OFF_S)
+                log.info("online: the bootstrap's held and refined batches %.0f deg apart at their end", math.degrees(turned))
+                if turned > 0.5 * math.pi:
+                    result, self.stats.bootstrap_refined = refined, True
         else:
             options = SmartmocapOptions(
                 motion_prior=o.bootstrap_motion_prior, keypoint_offsets=o.bootstrap_keypoint_offsets, offset_rounds=o.bootstrap_offset_rounds,
@@ -735,13 +728,8 @@ class OnlineFusion:
                 graph=replace(SmartmocapOptions().graph, focal="fixed", swaps=o.graph.swaps),
             )  # fmt: skip
             result = run_smartmocap(mini, options)
-        self.stats.bootstrap_seconds += time.perf_counter() - start
-        self.stats.bootstrap_solves += 1
+        self.stats.bootstrap_seconds = time.perf_counter() - start
         span = self._buffer[-1].timestamp - self.t0
-        if not final and span + _BOOTSTRAP_STEP_S <= self._bootstrap_max_s + _SNAP and self._flip_at_the_end(result, self._buffer[-1].timestamp):
-            self._bootstrap_until = span + _BOOTSTRAP_STEP_S
-            log.info("online: the bootstrap's batch relabels a UAV's whole body in its last %.1f s; waiting until %.2f s", _SETTLED_S, self._bootstrap_until)
-            return False
         self.shape = np.asarray(result.shape, dtype=float)
         self._keypoint_offsets = {fmt: offsets_from_table(fmt, table) for fmt, table in result.parameters.get("keypoint_offsets_m", {}).items()}
         self._caches.clear()
@@ -767,7 +755,6 @@ class OnlineFusion:
         if o.shape == "refine":
             self._shape_key = shape_key()
         self._bootstrapped = True
-        self.stats.bootstrap_span_s = span
         self.stats.bootstrap_observations = len(self._buffer)
         log.info("online: bootstrap of %.2f s (%d states, %s) in %.1f s", span, n, self.kind, self.stats.bootstrap_seconds)
         # One smoother update with every buffered observation, from the batch solution: replayed
@@ -782,19 +769,6 @@ class OnlineFusion:
             self._add_observation(self.index[frame.camera], frame, i, a)
         self._flush()
         self.stats.batches = 0  # the bootstrap's update is one by construction
-        return True
-
-    def _flip_at_the_end(self, result: Result, end: float) -> bool:
-        """Whether the batch ``result`` relabels a moving camera's whole body in a frame of its last
-        ``_SETTLED_S`` before ``end`` (AirCap rigs)."""
-        if self.kind != "aircap":
-            return False
-        body = SWAP_KINDS.index("body")
-        for name, track in result.cameras.items():
-            if track.swaps is not None and self.rig.cameras[self.index[name]].moving:
-                if np.any((track.swaps == body) & (np.asarray(track.timestamps) > end - _SETTLED_S)):
-                    return True
-        return False
 
     # -- the loop -------------------------------------------------------------------------------
 
@@ -1451,7 +1425,7 @@ class OnlineFusion:
     def finish(self) -> None:
         """End of stream: close the open interval and take every state still in the window as smoothed."""
         if not self._bootstrapped and self._buffer:
-            self._bootstrap(final=True)
+            self._bootstrap()
         if self.open is None:
             return
         self._flush()
@@ -1498,6 +1472,15 @@ class OnlineFusion:
                     result.cameras[self.rig.cameras[c].name] = CameraTrack(ts, np.stack([poses_c[t] for t in ts]), codes)
             out.append(result)
         return out[0], out[1]
+
+
+def _heading_apart_rad(a: Result, b: Result, seconds: float) -> float:
+    """The median angle (radians) between two results' root orientations over the last ``seconds``
+    of ``a`` (their states on the same time grid)."""
+    last = np.asarray(a.timestamps) > a.timestamps[-1] - seconds - _SNAP
+    near = np.abs(np.asarray(b.timestamps)[None] - np.asarray(a.timestamps)[last][:, None]).argmin(1)
+    relative = np.einsum("tji,tjk->tik", a.root[last][:, :3, :3], b.root[near][:, :3, :3])
+    return float(np.median(np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 @dataclass
