@@ -37,8 +37,8 @@ the rig mirrors (:func:`~mocapgraph.pipelines.aircap.run_aircap` in sequence mod
 cameras held at their onboard estimate, checked by a second batch with them refined near it and
 their whole-body relabelling, as offline: ``bootstrap_cameras``; or
 :func:`~mocapgraph.pipelines.smartmocap.run_smartmocap`). Its body shape is then held, its states
-and cameras start the smoother, and the buffered observations are replayed into it. Those states are flagged ``bootstrap`` in the results: their
-starting values saw the whole bootstrap window.
+and cameras start the smoother, and the buffered observations are replayed into it. Those states
+are flagged ``bootstrap`` in the results: their starting values saw the whole bootstrap window.
 
 **The loop.** Observations are gathered per grid interval ``(t_i, t_{i+1}]``; the first one of a
 later interval closes it: one smoother update creates the states up to ``t_{i+1}`` (each starting
@@ -142,8 +142,9 @@ class OnlineOptions:
     # 0.7-1.2 s, unwound by 1.6 s) and the loop starts from the refined one. Not the refined batch
     # always: its cameras move 0.3-0.65 m to explain flips (held: 0.25-0.3 m from the truth), its
     # states are then off the held cameras, and the loop lost the body in a later flip (aircap 3 s
-    # seed 0: smoothed RA-MPJPE 0.0846 against 0.0685 m). A second batch solve (~1.5x the bootstrap's time).
-    # aircap 10 s smoothed RA-MPJPE, seeds 0-2: 0.0781 / 0.0682 / 0.0755 -> see docs/online.md.
+    # seed 0: smoothed RA-MPJPE 0.0846 against 0.0685 m). aircap 10 s, smoothed RA-MPJPE seeds 0-2:
+    # 0.0781 / 0.0682 / 0.0755 -> 0.0722 / 0.0682 / 0.0755 m (1.23x -> 1.14x offline on seed 0, the
+    # only one whose batches disagree), for a second batch solve in the bootstrap (docs/online.md).
     bootstrap_cameras: str = "check"
     # "refine" measured worse than "prior" on aircap (docs/online.md): per-frame camera variables
     # near the onboard estimate drifted with the body's whole-body relabellings
@@ -1475,8 +1476,8 @@ class OnlineFusion:
 
 
 def _heading_apart_rad(a: Result, b: Result, seconds: float) -> float:
-    """The median angle (radians) between two results' root orientations over the last ``seconds``
-    of ``a`` (their states on the same time grid)."""
+    """The median angle (radians) between the root orientations of ``a``'s states in its last
+    ``seconds`` and of ``b``'s nearest in time (two batches of the same frames)."""
     last = np.asarray(a.timestamps) > a.timestamps[-1] - seconds - _SNAP
     near = np.abs(np.asarray(b.timestamps)[None] - np.asarray(a.timestamps)[last][:, None]).argmin(1)
     relative = np.einsum("tji,tjk->tik", a.root[last][:, :3, :3], b.root[near][:, :3, :3])
