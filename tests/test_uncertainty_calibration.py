@@ -149,28 +149,47 @@ def gm_between(i: int, j: int, z: np.ndarray, sigma: float, c: float) -> gtsam.C
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2), gtsam.KeyVector([X(i), X(j)]), error)
 
 
-def test_robust_group_ignores_the_faults_a_kernel_sets_aside():
-    """Two-row measurements 2x noisier than modelled, 5 % of them gross faults, solved with the
-    kernel: measured as a robust group (median of the pairs) the factor is about 4; as a plain
-    sum the faults' saturated residuals dominate."""
+def faulty_chain_factors(rng: np.random.Generator) -> tuple[float, float, gtsam.NonlinearFactorGraph]:
+    """One chain of 40 points with four two-row measurements per link, 2x noisier than modelled
+    and 5 % of them gross faults (40σ), solved with the kernel: the links' variance factor
+    measured as a robust group and as a plain sum, and the graph."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
-    truth = RNG.uniform(-1, 1, (40, 2))
+    truth = rng.uniform(-1, 1, (40, 2))
     for i, p in enumerate(truth):
         values.insert(X(i), gtsam.Point2(*p))
     graph.add(gtsam.PriorFactorPoint2(X(0), truth[0], gtsam.noiseModel.Isotropic.Sigma(2, 1e-3)))
     for _ in range(4):
         for i in range(len(truth) - 1):
-            n = RNG.normal(0.0, 2 * SIGMA, 2) + (RNG.random() < 0.05) * RNG.normal(0.0, 40 * SIGMA, 2)
+            n = rng.normal(0.0, 2 * SIGMA, 2) + (rng.random() < 0.05) * rng.normal(0.0, 40 * SIGMA, 2)
             graph.add(gm_between(i, i + 1, truth[i + 1] - truth[i] + n, SIGMA, 10.0))
     result = solved(graph, values)
     system = linear_system(graph.linearize(result), result)
     between = {"between": np.arange(1, graph.size())}
-    robust = variance_factors(system, between, robust={"between"})["between"]
-    plain = variance_factors(system, between)["between"]
-    assert 3.2 < robust < 5.0
-    assert plain > 1.3 * robust  # 5 % faults at 40σ, saturated at c = 10: measured 5.7 against 3.9
-    assert set(factor_groups(graph)) == {"x"}  # one kind of variable: one group
+    return variance_factors(system, between, robust={"between"})["between"], variance_factors(system, between)["between"], graph
+
+
+ROBUST_MEAN, ROBUST_SD, RATIO_MEAN, RATIO_SD = 3.755, 0.45, 1.66, 0.09
+"""The robust factor's sampling distribution on one such chain, measured over 400 fresh generators:
+mean 3.755, standard deviation 0.45 (12 %: the median of 156 keypoints' residuals, whose own
+relative spread is 1/(ln 2·√156) = 11.6 %); of 8 chains' means, plain over robust 1.66 ± 0.09.
+The mean is 6 % under what the linearised graph's marginals need (3.98 by Monte Carlo of the
+solution over 300 draws; 3.83 against 3.54 without faults): the kernel compresses the residuals a
+little more than it weakens the information; with it, 0.943 of the solved points' errors lie
+inside their 95 % ellipses (docs/uncertainty.md)."""
+
+
+def test_robust_group_ignores_the_faults_a_kernel_sets_aside():
+    """Measured as a robust group (median of the pairs) the factor is near 4, the noise's; as a
+    plain sum the faults' saturated residuals dominate. Pooled over 8 chains of the test's own
+    generator, each bound is 4 standard deviations of that pooled mean's sampling distribution
+    (:data:`ROBUST_SD`, measured), not of a guess: one chain's factor alone spreads ±0.45."""
+    rng = np.random.default_rng(11)
+    draws = [faulty_chain_factors(rng) for _ in range(8)]
+    robust, plain = np.mean([d[0] for d in draws]), np.mean([d[1] for d in draws])
+    assert abs(robust - ROBUST_MEAN) < 4 * ROBUST_SD / np.sqrt(len(draws)), robust
+    assert plain / robust > RATIO_MEAN - 4 * RATIO_SD, (plain, robust)
+    assert set(factor_groups(draws[0][2])) == {"x"}  # one kind of variable: one group
 
 
 def test_scaled_graph_scales_the_marginals():
