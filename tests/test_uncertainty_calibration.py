@@ -19,6 +19,7 @@ from mocapgraph.graphs.uncertainty import (
     scaled_linear_graph,
     similarity_jacobian,
     variance_factors,
+    window_misfit,
 )
 
 RNG = np.random.default_rng(7)
@@ -227,6 +228,50 @@ def test_lever_covariances_are_a_small_world_rotations_first_order_effect():
     assert np.allclose(at_pivot[:3, :3], np.eye(3)) and np.allclose(at_pivot[3:], 0.0)
 
 
+def test_window_misfit_is_each_windows_chi2_per_row():
+    """The motion prior's misfit per state: the squared whitened residuals over the rows of the
+    factors on each window's latent (symbol ``m``), at the values; a state in two windows takes
+    the larger, a state in none 0, a factor on no latent counts nowhere."""
+    m0, m1 = gtsam.symbol("m", 0), gtsam.symbol("m", 1)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorVector(m0, np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 0.5)))
+    graph.add(gtsam.PriorFactorVector(m1, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 2.0)))
+    graph.add(gtsam.PriorFactorVector(m1, np.ones(3), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    graph.add(gtsam.PriorFactorPoint3(X(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
+    values = gtsam.Values()
+    values.insert(m0, np.array([1.0, -0.5]))
+    values.insert(m1, np.array([0.2, 0.4, 1.0]))
+    values.insert(X(0), np.array([1.0, 0.0, 0.0]))
+    system = linear_system(graph.linearize(values), values)
+    w0 = (1.0**2 + 0.5**2) / 0.5**2 / 2
+    w1 = ((0.2**2 + 0.4**2 + 1.0**2) / 2.0**2 + (0.8**2 + 0.6**2 + 0.0**2) / 0.1**2) / 6
+    misfit = window_misfit(system, graph, "m", [0, 3], 4, 8)
+    np.testing.assert_allclose(misfit, [w0, w0, w0, max(w0, w1), w1, w1, w1, 0.0], rtol=1e-9)
+
+
+def test_model_error_scales_each_states_joints_by_the_motion_priors_misfit():
+    """SmartMocap's model error of state ``i``'s joints and root: the variance factor times
+    ``1 + gain·μ_i`` (``μ`` the result's ``motion_prior_misfit`` flag), the rotation about the
+    centroid added as it was; no flag: the factor alone."""
+    from mocapgraph.data_tools.io.result import Result
+    from mocapgraph.pipelines.smartmocap import lever_covariance, pose_lever_covariance, with_model_error
+
+    rng = np.random.default_rng(5)
+    joints = rng.normal(size=(3, 22, 3))
+    root = np.repeat(np.eye(4)[None], 3, axis=0)
+    root[:, :3, 3] = joints[:, 0]
+    A, B = rng.normal(size=(3, 22, 3, 3)), rng.normal(size=(3, 6, 6))
+    covariances = {"joints": A @ np.swapaxes(A, -1, -2), "root": B @ np.swapaxes(B, -1, -2)}
+    result = Result("smartmocap", "toy", "ground_plane", np.arange(3) / 30, joints, root=root, flags={"motion_prior_misfit": np.array([0.0, 0.5, 2.0])})
+    out = with_model_error(covariances, result, None, (2.0, 1.0, 1.0), (0.01, 0.0, 0.0), misfit_gain=1.5)
+    factor = 2.0 * (1.0 + 1.5 * np.array([0.0, 0.5, 2.0]))
+    centroid = joints.reshape(-1, 3).mean(0)
+    np.testing.assert_allclose(out["joints"], factor[:, None, None, None] * covariances["joints"] + 1e-4 * lever_covariance(joints - centroid), rtol=1e-12)
+    np.testing.assert_allclose(out["root"], factor[:, None, None] * covariances["root"] + 1e-4 * pose_lever_covariance(root, centroid), rtol=1e-12)
+    result.flags = {}
+    np.testing.assert_allclose(with_model_error(covariances, result, None, (2.0, 1.0, 1.0), (0.0, 0.0, 0.0), misfit_gain=1.5)["joints"], 2.0 * covariances["joints"])
+
+
 @pytest.mark.slow
 def test_smartmocap_coverage_on_a_held_out_phones_capture():
     """SmartMocap's covariances on a ``phones`` capture none of their model error was fitted on
@@ -244,10 +289,16 @@ def test_smartmocap_coverage_on_a_held_out_phones_capture():
 
     capture = synthesize("phones", seed=5, duration_s=3.0)
     defaults = SmartmocapOptions()
-    graph_only = run_smartmocap(capture, SmartmocapOptions(keypoint_offsets=False, covariance_model_error=(1.0, 1.0, 1.0), covariance_lever_error_rad=(0.0, 0.0, 0.0)))
+    graph_only = run_smartmocap(
+        capture, SmartmocapOptions(keypoint_offsets=False, covariance_model_error=(1.0, 1.0, 1.0), covariance_lever_error_rad=(0.0, 0.0, 0.0), covariance_misfit_gain=0.0)
+    )
     shares = {}
-    for name, factors, lever in (("new", defaults.covariance_model_error, defaults.covariance_lever_error_rad), ("old", (3.7, 22.5, 13.0), (0.0, 0.0, 0.0))):
-        result = replace(graph_only, covariances={**graph_only.covariances, **with_model_error(graph_only.covariances, graph_only, capture, factors, lever)})
+    models = (
+        ("new", defaults.covariance_model_error, defaults.covariance_lever_error_rad, defaults.covariance_misfit_gain),
+        ("old", (3.7, 22.5, 13.0), (0.0, 0.0, 0.0), 0.0),
+    )
+    for name, factors, lever, gain in models:
+        result = replace(graph_only, covariances={**graph_only.covariances, **with_model_error(graph_only.covariances, graph_only, capture, factors, lever, gain)})
         shares[name] = coverage(result, capture)
     assert 0.8 <= shares["new"]["joints"] <= 0.99 and 0.85 <= shares["new"]["cameras"] <= 1.0
     assert shares["new"]["joints"] >= shares["old"]["joints"] and shares["new"]["cameras"] >= shares["old"]["cameras"]
