@@ -277,12 +277,13 @@ def test_smartmocap_coverage_on_a_held_out_phones_capture():
     """SmartMocap's covariances on a ``phones`` capture none of their model error was fitted on
     (the synthesiser's procedural walk, seed 5, 3 s; the fit used CMU takes of other subjects):
     the share of the joints' and of the camera centres' errors inside their 95 % ellipsoids, after
-    the evaluation's alignment, with the model error as the options give it (factors and the
-    rotation about the joints' centroid) and with the old factors alone (3.7, 22.5, 13), both
-    from the same solve's graph covariances. Measured: joints 0.836 against 0.812, cameras 1.0
-    and 1.0: the joints stay under the goal's 0.85 on this motion (the pelvis 0.48 inside;
-    docs/uncertainty.md), so the bound here is 0.8; a take's cameras may reach 1.0 (a static
-    camera's one pose is in or out)."""
+    the evaluation's alignment, with the model error as the options give it (factors, the
+    rotation about the joints' centroid and the motion prior's misfit) and with the old factors
+    alone (3.7, 22.5, 13), both from the same solve's graph covariances. Measured: joints 0.969
+    against 0.812, cameras 1.0 and 1.0. The motion prior misfits this walk (χ² per row 1.1-1.5,
+    0.2-0.7 on the training takes) and the joints' errors are as much larger, the pelvis's most
+    (0.48 inside without the misfit's term; docs/uncertainty.md); a take's cameras may reach 1.0
+    (a static camera's one pose is in or out)."""
     from mocapgraph.data_tools.evaluation.evaluate import coverage
     from mocapgraph.data_tools.sim.synthetic import synthesize
     from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap, with_model_error
@@ -300,5 +301,5 @@ def test_smartmocap_coverage_on_a_held_out_phones_capture():
     for name, factors, lever, gain in models:
         result = replace(graph_only, covariances={**graph_only.covariances, **with_model_error(graph_only.covariances, graph_only, capture, factors, lever, gain)})
         shares[name] = coverage(result, capture)
-    assert 0.8 <= shares["new"]["joints"] <= 0.99 and 0.85 <= shares["new"]["cameras"] <= 1.0
+    assert 0.85 <= shares["new"]["joints"] <= 0.99 and 0.85 <= shares["new"]["cameras"] <= 1.0
     assert shares["new"]["joints"] >= shares["old"]["joints"] and shares["new"]["cameras"] >= shares["old"]["cameras"]
