@@ -19,6 +19,7 @@ from mocapgraph.graphs.uncertainty import (
     scaled_linear_graph,
     similarity_jacobian,
     variance_factors,
+    window_misfit,
 )
 
 RNG = np.random.default_rng(7)
@@ -149,28 +150,47 @@ def gm_between(i: int, j: int, z: np.ndarray, sigma: float, c: float) -> gtsam.C
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2), gtsam.KeyVector([X(i), X(j)]), error)
 
 
-def test_robust_group_ignores_the_faults_a_kernel_sets_aside():
-    """Two-row measurements 2x noisier than modelled, 5 % of them gross faults, solved with the
-    kernel: measured as a robust group (median of the pairs) the factor is about 4; as a plain
-    sum the faults' saturated residuals dominate."""
+def faulty_chain_factors(rng: np.random.Generator) -> tuple[float, float, gtsam.NonlinearFactorGraph]:
+    """One chain of 40 points with four two-row measurements per link, 2x noisier than modelled
+    and 5 % of them gross faults (40σ), solved with the kernel: the links' variance factor
+    measured as a robust group and as a plain sum, and the graph."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
-    truth = RNG.uniform(-1, 1, (40, 2))
+    truth = rng.uniform(-1, 1, (40, 2))
     for i, p in enumerate(truth):
         values.insert(X(i), gtsam.Point2(*p))
     graph.add(gtsam.PriorFactorPoint2(X(0), truth[0], gtsam.noiseModel.Isotropic.Sigma(2, 1e-3)))
     for _ in range(4):
         for i in range(len(truth) - 1):
-            n = RNG.normal(0.0, 2 * SIGMA, 2) + (RNG.random() < 0.05) * RNG.normal(0.0, 40 * SIGMA, 2)
+            n = rng.normal(0.0, 2 * SIGMA, 2) + (rng.random() < 0.05) * rng.normal(0.0, 40 * SIGMA, 2)
             graph.add(gm_between(i, i + 1, truth[i + 1] - truth[i] + n, SIGMA, 10.0))
     result = solved(graph, values)
     system = linear_system(graph.linearize(result), result)
     between = {"between": np.arange(1, graph.size())}
-    robust = variance_factors(system, between, robust={"between"})["between"]
-    plain = variance_factors(system, between)["between"]
-    assert 3.2 < robust < 5.0
-    assert plain > 1.3 * robust  # 5 % faults at 40σ, saturated at c = 10: measured 5.7 against 3.9
-    assert set(factor_groups(graph)) == {"x"}  # one kind of variable: one group
+    return variance_factors(system, between, robust={"between"})["between"], variance_factors(system, between)["between"], graph
+
+
+ROBUST_MEAN, ROBUST_SD, RATIO_MEAN, RATIO_SD = 3.755, 0.45, 1.66, 0.09
+"""The robust factor's sampling distribution on one such chain, measured over 400 fresh generators:
+mean 3.755, standard deviation 0.45 (12 %: the median of 156 keypoints' residuals, whose own
+relative spread is 1/(ln 2·√156) = 11.6 %); of 8 chains' means, plain over robust 1.66 ± 0.09.
+The mean is 6 % under what the linearised graph's marginals need (3.98 by Monte Carlo of the
+solution over 300 draws; 3.83 against 3.54 without faults): the kernel compresses the residuals a
+little more than it weakens the information; with it, 0.943 of the solved points' errors lie
+inside their 95 % ellipses (docs/uncertainty.md)."""
+
+
+def test_robust_group_ignores_the_faults_a_kernel_sets_aside():
+    """Measured as a robust group (median of the pairs) the factor is near 4, the noise's; as a
+    plain sum the faults' saturated residuals dominate. Pooled over 8 chains of the test's own
+    generator, each bound is 4 standard deviations of that pooled mean's sampling distribution
+    (:data:`ROBUST_SD`, measured), not of a guess: one chain's factor alone spreads ±0.45."""
+    rng = np.random.default_rng(11)
+    draws = [faulty_chain_factors(rng) for _ in range(8)]
+    robust, plain = np.mean([d[0] for d in draws]), np.mean([d[1] for d in draws])
+    assert abs(robust - ROBUST_MEAN) < 4 * ROBUST_SD / np.sqrt(len(draws)), robust
+    assert plain / robust > RATIO_MEAN - 4 * RATIO_SD, (plain, robust)
+    assert set(factor_groups(draws[0][2])) == {"x"}  # one kind of variable: one group
 
 
 def test_scaled_graph_scales_the_marginals():
@@ -208,27 +228,78 @@ def test_lever_covariances_are_a_small_world_rotations_first_order_effect():
     assert np.allclose(at_pivot[:3, :3], np.eye(3)) and np.allclose(at_pivot[3:], 0.0)
 
 
+def test_window_misfit_is_each_windows_chi2_per_row():
+    """The motion prior's misfit per state: the squared whitened residuals over the rows of the
+    factors on each window's latent (symbol ``m``), at the values; a state in two windows takes
+    the larger, a state in none 0, a factor on no latent counts nowhere."""
+    m0, m1 = gtsam.symbol("m", 0), gtsam.symbol("m", 1)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorVector(m0, np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 0.5)))
+    graph.add(gtsam.PriorFactorVector(m1, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 2.0)))
+    graph.add(gtsam.PriorFactorVector(m1, np.ones(3), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    graph.add(gtsam.PriorFactorPoint3(X(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
+    values = gtsam.Values()
+    values.insert(m0, np.array([1.0, -0.5]))
+    values.insert(m1, np.array([0.2, 0.4, 1.0]))
+    values.insert(X(0), np.array([1.0, 0.0, 0.0]))
+    system = linear_system(graph.linearize(values), values)
+    w0 = (1.0**2 + 0.5**2) / 0.5**2 / 2
+    w1 = ((0.2**2 + 0.4**2 + 1.0**2) / 2.0**2 + (0.8**2 + 0.6**2 + 0.0**2) / 0.1**2) / 6
+    misfit = window_misfit(system, graph, "m", [0, 3], 4, 8)
+    np.testing.assert_allclose(misfit, [w0, w0, w0, max(w0, w1), w1, w1, w1, 0.0], rtol=1e-9)
+
+
+def test_model_error_scales_each_states_joints_by_the_motion_priors_misfit():
+    """SmartMocap's model error of state ``i``'s joints and root: the variance factor times
+    ``1 + gain·μ_i`` (``μ`` the result's ``motion_prior_misfit`` flag), the rotation about the
+    centroid added as it was; no flag: the factor alone."""
+    from mocapgraph.data_tools.io.result import Result
+    from mocapgraph.pipelines.smartmocap import lever_covariance, pose_lever_covariance, with_model_error
+
+    rng = np.random.default_rng(5)
+    joints = rng.normal(size=(3, 22, 3))
+    root = np.repeat(np.eye(4)[None], 3, axis=0)
+    root[:, :3, 3] = joints[:, 0]
+    A, B = rng.normal(size=(3, 22, 3, 3)), rng.normal(size=(3, 6, 6))
+    covariances = {"joints": A @ np.swapaxes(A, -1, -2), "root": B @ np.swapaxes(B, -1, -2)}
+    result = Result("smartmocap", "toy", "ground_plane", np.arange(3) / 30, joints, root=root, flags={"motion_prior_misfit": np.array([0.0, 0.5, 2.0])})
+    out = with_model_error(covariances, result, None, (2.0, 1.0, 1.0), (0.01, 0.0, 0.0), misfit_gain=1.5)
+    factor = 2.0 * (1.0 + 1.5 * np.array([0.0, 0.5, 2.0]))
+    centroid = joints.reshape(-1, 3).mean(0)
+    np.testing.assert_allclose(out["joints"], factor[:, None, None, None] * covariances["joints"] + 1e-4 * lever_covariance(joints - centroid), rtol=1e-12)
+    np.testing.assert_allclose(out["root"], factor[:, None, None] * covariances["root"] + 1e-4 * pose_lever_covariance(root, centroid), rtol=1e-12)
+    result.flags = {}
+    np.testing.assert_allclose(with_model_error(covariances, result, None, (2.0, 1.0, 1.0), (0.0, 0.0, 0.0), misfit_gain=1.5)["joints"], 2.0 * covariances["joints"])
+
+
 @pytest.mark.slow
 def test_smartmocap_coverage_on_a_held_out_phones_capture():
     """SmartMocap's covariances on a ``phones`` capture none of their model error was fitted on
     (the synthesiser's procedural walk, seed 5, 3 s; the fit used CMU takes of other subjects):
     the share of the joints' and of the camera centres' errors inside their 95 % ellipsoids, after
-    the evaluation's alignment, with the model error as the options give it (factors and the
-    rotation about the joints' centroid) and with the old factors alone (3.7, 22.5, 13), both
-    from the same solve's graph covariances. Measured: joints 0.836 against 0.812, cameras 1.0
-    and 1.0: the joints stay under the goal's 0.85 on this motion (the pelvis 0.48 inside;
-    docs/uncertainty.md), so the bound here is 0.8; a take's cameras may reach 1.0 (a static
-    camera's one pose is in or out)."""
+    the evaluation's alignment, with the model error as the options give it (factors, the
+    rotation about the joints' centroid and the motion prior's misfit) and with the old factors
+    alone (3.7, 22.5, 13), both from the same solve's graph covariances. Measured: joints 0.969
+    against 0.812, cameras 1.0 and 1.0. The motion prior misfits this walk (χ² per row 1.1-1.5,
+    0.2-0.7 on the training takes) and the joints' errors are as much larger, the pelvis's most
+    (0.48 inside without the misfit's term; docs/uncertainty.md); a take's cameras may reach 1.0
+    (a static camera's one pose is in or out)."""
     from mocapgraph.data_tools.evaluation.evaluate import coverage
     from mocapgraph.data_tools.sim.synthetic import synthesize
     from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap, with_model_error
 
     capture = synthesize("phones", seed=5, duration_s=3.0)
     defaults = SmartmocapOptions()
-    graph_only = run_smartmocap(capture, SmartmocapOptions(keypoint_offsets=False, covariance_model_error=(1.0, 1.0, 1.0), covariance_lever_error_rad=(0.0, 0.0, 0.0)))
+    graph_only = run_smartmocap(
+        capture, SmartmocapOptions(keypoint_offsets=False, covariance_model_error=(1.0, 1.0, 1.0), covariance_lever_error_rad=(0.0, 0.0, 0.0), covariance_misfit_gain=0.0)
+    )
     shares = {}
-    for name, factors, lever in (("new", defaults.covariance_model_error, defaults.covariance_lever_error_rad), ("old", (3.7, 22.5, 13.0), (0.0, 0.0, 0.0))):
-        result = replace(graph_only, covariances={**graph_only.covariances, **with_model_error(graph_only.covariances, graph_only, capture, factors, lever)})
+    models = (
+        ("new", defaults.covariance_model_error, defaults.covariance_lever_error_rad, defaults.covariance_misfit_gain),
+        ("old", (3.7, 22.5, 13.0), (0.0, 0.0, 0.0), 0.0),
+    )
+    for name, factors, lever, gain in models:
+        result = replace(graph_only, covariances={**graph_only.covariances, **with_model_error(graph_only.covariances, graph_only, capture, factors, lever, gain)})
         shares[name] = coverage(result, capture)
-    assert 0.8 <= shares["new"]["joints"] <= 0.99 and 0.85 <= shares["new"]["cameras"] <= 1.0
+    assert 0.85 <= shares["new"]["joints"] <= 0.99 and 0.85 <= shares["new"]["cameras"] <= 1.0
     assert shares["new"]["joints"] >= shares["old"]["joints"] and shares["new"]["cameras"] >= shares["old"]["cameras"]

@@ -56,7 +56,16 @@ from mocapgraph.factors.smoothness import (
 from mocapgraph.graphs.camera_imu import PHONE_GYRO_NOISE, CameraImu, bias_prior, bias_walk_factor, imu_factor
 from mocapgraph.graphs.solver import annealed_stages
 from mocapgraph.graphs.state_model import Estimate, Observation, StateModel
-from mocapgraph.graphs.uncertainty import calibrated, factor_groups, joint_covariances, joints_datum, joints_in_datum, poses_in_datum, with_shape_cross
+from mocapgraph.graphs.uncertainty import (
+    calibrated,
+    factor_groups,
+    joint_covariances,
+    joints_datum,
+    joints_in_datum,
+    poses_in_datum,
+    window_misfit,
+    with_shape_cross,
+)
 from mocapgraph.priors.motion_windows import WINDOW
 
 POSE_PRIORS = ("none", "gmm", "vae")
@@ -283,6 +292,8 @@ class BodyGraph:
         self.labellings: dict[int, list[tuple[Labelling, list[Observation]]]] = {}
         # per factor group, its variance factor, once calibrated covariances were computed
         self.variance_factors: dict[str, float] = {}
+        # per state, the motion prior's misfit of its window (uncertainty.window_misfit), likewise
+        self.motion_misfit: np.ndarray = np.zeros(0)
 
     # -- variables ------------------------------------------------------------------------------
 
@@ -662,7 +673,8 @@ class BodyGraph:
         datum of a similarity over all joints (:class:`~mocapgraph.graphs.uncertainty.SimilarityDatum`),
         the frame any comparison with another frame aligns by (a world pinned to a body
         state, as SmartMocap's; not a world of its own such as AirCap's GPS frame); the shape's as it is. The factors
-        are kept in ``self.variance_factors``."""
+        are kept in ``self.variance_factors``, the motion prior's misfit per state in
+        ``self.motion_misfit`` (:func:`~mocapgraph.graphs.uncertainty.window_misfit`)."""
         calibration = calibrated(graph, values, {g for g in factor_groups(graph) if "r" in g and "c" in g}) if calibrate else None
         marginals = gtsam.Marginals(calibration.linear if calibrate else graph.linearize(values), values)
         n = self.model.num_states
@@ -690,4 +702,5 @@ class BodyGraph:
                 name = f"camera:{self.model.cameras[c].name}"
                 out[name] = poses_in_datum(datum, calibration, keys, estimate.cameras[c][self.model.camera_frames(c)], out[name])
             self.variance_factors = calibration.factors
+            self.motion_misfit = window_misfit(calibration.system, graph, chr(gtsam.Symbol(motion_latent_key(0)).chr()), self.windows, WINDOW, n)
         return out

@@ -165,13 +165,19 @@ class SmartmocapOptions:
     # settings): the factor that, with the rotation below, puts 95 % of their errors inside the
     # 95 % ellipsoids. Biases (a detector's person size, the swaps' residue) the graph has no
     # variable for.
-    covariance_model_error: tuple[float, float, float] = (3.39, 15.1, 5.67)
+    covariance_model_error: tuple[float, float, float] = (2.28, 15.1, 5.67)
     # And a rotation of each quantity about the joints' centroid, σ in radians per kind (joints
     # and root, static cameras, moving cameras): an error that grows with the distance from the
     # centroid, as the person walks away from it in a long take and as a camera stands metres
     # off; σ by maximum likelihood on the same takes, then the factors above by the 95 % rule
     # with it (docs/uncertainty.md, "The take's length").
     covariance_lever_error_rad: tuple[float, float, float] = (0.006, 0.012, 0.022)
+    # And the joints' (and root's) factor of each state times 1 + gain·μ, μ the motion prior's
+    # own misfit of its window (graphs.uncertainty.window_misfit, χ² per row; the result's
+    # flag ``motion_prior_misfit``): what the prior does not know of a motion, a pirouette or a
+    # walk unlike its training's, shows there and in the joints' errors alike. The gain by
+    # maximum likelihood on the same takes (docs/uncertainty.md, "The motion prior's misfit").
+    covariance_misfit_gain: float = 1.8
     # The shape estimated: with several views it is observable, and on a CMU walk seen by the rich
     # rig it halved the root orientation error (RA-MPJPE 3.7 -> 2.1 cm) and brought the scene's
     # scale within 4.4 % instead of 7.2 % for the held average body (measured). AirPose's two far
@@ -202,6 +208,8 @@ class SmartmocapOptions:
             raise MocapgraphError(f"motion_prior {self.motion_prior!r}: choose one of {', '.join(MOTION_PRIORS)}")
         if not (len(self.covariance_model_error) == 3 and all(isinstance(k, (int, float)) and np.isfinite(k) and k >= 1 for k in self.covariance_model_error)):
             raise MocapgraphError(f"covariance_model_error: three finite variance factors >= 1 (joints, static cameras, moving cameras), got {self.covariance_model_error!r}")
+        if not (isinstance(self.covariance_misfit_gain, (int, float)) and np.isfinite(self.covariance_misfit_gain) and self.covariance_misfit_gain >= 0):
+            raise MocapgraphError(f"covariance_misfit_gain: a finite number >= 0, got {self.covariance_misfit_gain!r}")
         if not (len(self.covariance_lever_error_rad) == 3 and all(isinstance(g, (int, float)) and 0 <= g <= 0.5 for g in self.covariance_lever_error_rad)):
             raise MocapgraphError(f"covariance_lever_error_rad: three angles in [0, 0.5] rad (joints, static cameras, moving cameras), got {self.covariance_lever_error_rad!r}")
         if not (isinstance(self.chunk_size, int) and 2 <= self.chunk_size):
@@ -673,7 +681,11 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     if options.covariances:
         cov_bg, cov_graph, cov_values = definition_graph(bg, options, learned, estimate, solved_final.values, offsets, imu, tracks)
         covariances = cov_bg.covariances(cov_graph, cov_values, estimate, calibrate=True)
-        result.covariances.update(with_model_error(covariances, result, capture, options.covariance_model_error, options.covariance_lever_error_rad))
+        if cov_bg.windows:
+            result.flags["motion_prior_misfit"] = cov_bg.motion_misfit
+        result.covariances.update(
+            with_model_error(covariances, result, capture, options.covariance_model_error, options.covariance_lever_error_rad, options.covariance_misfit_gain)
+        )
         result.parameters["variance_factors"] = {g: round(float(s2), 4) for g, s2 in cov_bg.variance_factors.items()}
     result.parameters.update(
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes,
@@ -734,18 +746,23 @@ def pose_lever_covariance(world_T_pose: np.ndarray, pivot: np.ndarray) -> np.nda
 
 
 def with_model_error(
-    covariances: dict[str, np.ndarray], result: Result, capture: Capture, factors: tuple[float, float, float], lever_rad: tuple[float, float, float]
+    covariances: dict[str, np.ndarray], result: Result, capture: Capture, factors: tuple[float, float, float], lever_rad: tuple[float, float, float],
+    misfit_gain: float = 0.0,
 ) -> dict[str, np.ndarray]:  # fmt: skip
     """``covariances`` (:meth:`BodyGraph.covariances`, of ``result``'s joints ``(T, 22, 3, 3)``,
     root and cameras ``(N, 6, 6)``) with the model error added, per kind (joints and root, the
     static cameras, the moving ones; ``SmartmocapOptions.covariance_model_error`` and
     ``covariance_lever_error_rad``): each times its variance factor, plus a rotation by ``σ``
-    radians about the joints' centroid (:func:`lever_covariance`, :func:`pose_lever_covariance`)."""
+    radians about the joints' centroid (:func:`lever_covariance`, :func:`pose_lever_covariance`);
+    the joints' and root's factor of state ``i`` also times ``1 + misfit_gain·μ_i``, ``μ`` the
+    result's flag ``motion_prior_misfit`` ``(T,)`` (none: 0)."""
     (k_joints, k_static, k_moving), (s_joints, s_static, s_moving) = factors, lever_rad
     centroid = np.nanmean(result.joints.reshape(-1, 3), axis=0)
+    misfit = result.flags.get("motion_prior_misfit", np.zeros(len(result.joints)))
+    k_states = k_joints * (1.0 + misfit_gain * np.asarray(misfit, dtype=float))[:, None, None]
     out = dict(covariances)
-    out["joints"] = k_joints * covariances["joints"] + s_joints**2 * lever_covariance(result.joints - centroid)
-    out["root"] = k_joints * covariances["root"] + s_joints**2 * pose_lever_covariance(result.root, centroid)
+    out["joints"] = k_states[:, None] * covariances["joints"] + s_joints**2 * lever_covariance(result.joints - centroid)
+    out["root"] = k_states * covariances["root"] + s_joints**2 * pose_lever_covariance(result.root, centroid)
     for name, track in result.cameras.items():
         key = f"camera:{name}"
         if key in out:
