@@ -65,7 +65,17 @@ from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import camera_imus, capture_state_model
 from mocapgraph.pipelines.reference_cameras import SOURCES as CAMERA_SOURCES
 from mocapgraph.pipelines.reference_cameras import ReferenceTracks, load_camera_reference, reference_tracks
-from mocapgraph.pipelines.results import clock_offset_parameters, combined_swaps, estimate_result, focal_notes, frame_ranges, imu_support_notes, swap_notes
+from mocapgraph.pipelines.results import (
+    clock_offset_parameters,
+    combined_swaps,
+    estimate_result,
+    focal_notes,
+    frame_ranges,
+    imu_support_notes,
+    joint_motion_m,
+    still_body_notes,
+    swap_notes,
+)
 from mocapgraph.priors.motion_windows import WINDOW
 
 log = logging.getLogger(__name__)
@@ -670,6 +680,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         "smartmocap", capture, model, body, estimate, "ground_plane", options_parameters(replace(options, checkpoint=None)), capture_label, cameras=placed_cameras, swaps=swaps,
         keypoint_offsets=offsets, drift=drift,
     )
+    notes += still_body_notes(result.joints)
     if options.covariances:
         cov_bg, cov_graph, cov_values = definition_graph(bg, options, learned, estimate, solved_final.values, offsets, imu, tracks)
         covariances = cov_bg.covariances(cov_graph, cov_values, estimate, calibrate=True)
@@ -679,7 +690,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         initialiser_used=used, seconds=round(seconds, 3), seconds_per_chunk=round(float(np.median(chunk_seconds)), 3), chunks=len(bounds), notes=notes,
         focal_px=bg.focal_lengths(estimate), reprojection_px=reprojection,
         keypoint_offsets_m={fit.fmt: fit.as_table() for fit in fits} if options.keypoint_offsets else {},
-        imu_clock_offsets_s=clock_offset_parameters(model, clock_offsets),
+        imu_clock_offsets_s=clock_offset_parameters(model, clock_offsets), joint_motion_m=round(joint_motion_m(result.joints), 4),
     )
     return result
 
