@@ -144,7 +144,7 @@ class SmartmocapOptions:
     # reprojection median, every view): 40 px 8.10, 30 px 7.76, 25 px 7.51, 20 px 7.22, 15 px
     # 6.95, 10 px 6.96. But with the drift on (the result's keypoints) bench real moved little:
     # 20 px took the largest person 7.23 -> 7.1 px and the second 5.05 -> 5.4 (cameras held, so
-    # the same). On rich (6 s, seed 0, one run each; RA-MPJPE, MPE, MPJPE, static cameras in cm),
+    # the same); on the BODY_25B clip the largest 7.3 -> 6.2 px (cameras 2.95 -> 3.0 cm). On rich (6 s, seed 0, one run each; RA-MPJPE, MPE, MPJPE, static cameras in cm),
     # 40 -> 20 px with realistic faults: 3.33 -> 3.17, 1.57 -> 1.55, 1.71 -> 1.68, 1.10 -> 1.09;
     # without faults 2.58 -> 2.50, 1.00 -> 1.08, 1.28 -> 1.31, 0.75 -> 0.79 (the pelvis further
     # off). 15 px: with faults 3.11, 1.56, 1.68, 1.09, without MPE 1.15; 10 px (an earlier
