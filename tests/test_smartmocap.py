@@ -13,6 +13,7 @@ from mocapgraph.data_tools.evaluation.evaluate import evaluate
 from mocapgraph.data_tools.sim.synthetic import synthesize
 from mocapgraph.errors import MocapgraphError
 from mocapgraph.graphs.state_model import CameraInfo, Estimate, build_state_model
+from mocapgraph.pipelines.results import STILL_MOTION_M, joint_motion_m
 from mocapgraph.pipelines.smartmocap import SmartmocapOptions, chunk_bounds, run_smartmocap, stitch
 
 
@@ -157,12 +158,46 @@ def test_all_cameras_moving_runs_and_says_so():
     assert np.isfinite(result.joints).all() and m["pa_mpjpe_m"] < 0.08
 
 
-@pytest.mark.slow  # 6 s: a whole SmartMocap run for one note
-def test_person_standing_still_flags_the_ground_tilt():
+def truth_motion_m(joints) -> float:
+    """The median over joints of sqrt(trace of the joint's covariance over time): the same
+    quantity as joint_motion_m, computed another way."""
+    return float(np.median(np.sqrt(np.var(joints, axis=0).sum(axis=-1))))
+
+
+@pytest.mark.slow  # 6 s: a whole SmartMocap run for two notes
+def test_person_standing_still_flags_the_ground_tilt_and_the_cameras():
     cap = synthesize("rich", seed=2, duration_s=1.0, motion="stand")
     result, m = run(cap, covariances=False)
-    assert "feet spread only" in " ".join(result.parameters["notes"])
+    notes = " ".join(result.parameters["notes"])
+    assert "feet spread only" in notes
     assert m["mpjpe_m"] < 0.05
+    truth = truth_motion_m(cap.ground_truth.joints)
+    assert truth < 0.01  # the simulator's stand sways by millimetres
+    # the solve's body moves no more than a centimetre more than the true one
+    assert result.parameters["joint_motion_m"] < truth + 0.01 < STILL_MOTION_M
+    assert "the body barely moved" in notes and "poorly determined" in notes
+
+
+def test_a_walk_is_not_flagged_as_still(solved, capture):
+    result, _ = solved
+    truth = truth_motion_m(capture.ground_truth.joints)
+    assert truth > 2 * STILL_MOTION_M
+    assert result.parameters["joint_motion_m"] == pytest.approx(truth, rel=0.1)  # the solve's scale is the body's
+    assert not any("barely moved" in note for note in result.parameters["notes"])
+
+
+def test_joint_motion_of_a_body_swaying_by_a_known_amount():
+    """Every joint on a sine of amplitude a along x: RMS distance from the mean a/sqrt(2); a
+    state of NaN joints is left out, a still body is 0 and no states is NaN."""
+    t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
+    rest = np.random.default_rng(0).normal(size=(22, 3))
+    joints = np.repeat(rest[None], len(t), axis=0)
+    joints[:, :, 0] += 0.3 * np.sin(t)[:, None]
+    assert joint_motion_m(joints) == pytest.approx(0.3 / np.sqrt(2), rel=1e-9)
+    joints[5] = np.nan
+    assert joint_motion_m(joints) == pytest.approx(truth_motion_m(np.delete(joints, 5, axis=0)), rel=1e-12)
+    assert joint_motion_m(np.repeat(rest[None], 10, axis=0)) == pytest.approx(0.0, abs=1e-12)
+    assert np.isnan(joint_motion_m(np.full((3, 22, 3), np.nan)))
 
 
 def test_no_detections_is_one_clear_error(capture):

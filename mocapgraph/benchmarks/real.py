@@ -21,7 +21,9 @@ poses are then compared with the lab's:
   and focal lengths against the detections as it relabelled them (both pipelines: the same
   points, so the same definition);
 - frames relabelled (left/right swaps found) per camera, focal lengths estimated, run time;
-- whether the person fitted is the same person in every camera (:func:`same_person_check`).
+- whether the person fitted is the same person in every camera (:func:`same_person_check`);
+- how far SmartMocap's body moved (``joint_motion_cm``, :func:`~mocapgraph.pipelines.results.joint_motion_m`):
+  a nearly still person places the cameras poorly, and its note says so.
 
 The ``goals`` say where SmartMocap should be: at or below the baseline on every camera error,
 the reprojection, the ground tilt and the scale (calibrated intrinsics), its cameras with guessed
@@ -277,6 +279,8 @@ def measure(result: Result, seconds: float, capture: Capture, lab: dict[str, Cam
         focal_px=focal, focal_estimated=sorted(estimated),
         focal_error_pct={n: round(100 * (f / lab[n].K[0, 0] - 1), 1) for n, f in focal.items()},
         seconds=round(seconds, 1), notes=list(result.parameters.get("notes", [])),
+        # how far the body moved (SmartMocap's; pipelines.results.joint_motion_m): a still one places cameras poorly
+        joint_motion_cm=None if "joint_motion_m" not in result.parameters else round(100 * result.parameters["joint_motion_m"], 1),
     )  # fmt: skip
     return row
 
@@ -410,6 +414,7 @@ _ROWS = (
     ("reprojection_px", "reprojection, reported (px)"),
     ("reprojection_px_of_result", "reprojection, result (px)"),
     ("reprojection_px_body_points", "reprojection, body's points"),
+    ("joint_motion_cm", "body's joint motion (cm)"),
     ("swaps_per_camera", "frames relabelled"),
     ("focal_px", "focal length (px)"),
     ("seconds", "run time (s)"),

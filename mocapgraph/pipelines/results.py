@@ -101,6 +101,43 @@ def swap_notes(names: list[str], swaps: dict[int, np.ndarray]) -> list[str]:
     return notes
 
 
+STILL_MOTION_M = 0.15
+"""A body whose :func:`joint_motion_m` is below this barely moved, and cameras placed from it
+alone are poorly determined. Measured (one run each, every camera's pose self-calibrated): the
+synthetic ``rich`` standing person (6 s, seed 0) 0.006 m, its static cameras 2.3 cm / 0.43° off
+against 0.75 cm / 0.10° for the same rig's walk (1.19 m); on the lab clips the nearly still second
+persons 0.047 m (BlazePose, cameras 4.4 cm / 2.0° off) and 0.089 m (BODY_25B: 97 cm / 43° off,
+its reprojection 8.4 px looking fine), the treadmill runner 0.24 m (4.0 cm / 1.5°)."""
+
+
+def joint_motion_m(joints: np.ndarray) -> float:
+    """How far a body moved over a capture: the median over joints of each joint's root mean
+    square distance from its own mean position, metres (``joints (T, J, 3)``, world; states with
+    NaN joints left out; NaN without a finite state).
+
+    A still person shows the cameras the same few points in every frame: the body's size and
+    pose prior then carry the cameras' placement, where a moving one spreads new points through
+    the volume every frame."""
+    joints = np.asarray(joints, dtype=float)
+    finite = np.isfinite(joints).all(axis=(1, 2))
+    if not finite.any():
+        return float("nan")
+    kept = joints[finite]
+    return float(np.median(np.sqrt(((kept - kept.mean(axis=0)) ** 2).sum(axis=-1).mean(axis=0))))
+
+
+def still_body_notes(joints: np.ndarray) -> list[str]:
+    """A note when the body barely moved (:func:`joint_motion_m` below :data:`STILL_MOTION_M`)."""
+    motion = joint_motion_m(joints)
+    if not motion < STILL_MOTION_M:
+        return []
+    return [
+        f"the body barely moved: its joints' median RMS distance from their mean positions is {100 * motion:.1f} cm, under {100 * STILL_MOTION_M:.0f} cm; "
+        "cameras placed from a still body are poorly determined, and a low reprojection does not say they are right ("
+        "docs/smartmocap.md, \"A body that barely moves\")"
+    ]
+
+
 def focal_notes(model: StateModel, focals: dict[str, float]) -> list[str]:
     """One note per camera whose focal length the solve estimated: the estimate against the given one."""
     given = {cam.name: float(cam.K[0, 0]) for cam in model.cameras}
