@@ -200,7 +200,9 @@ def test_static_cameras_also_scored_as_a_rig_after_their_own_procrustes(rig):
     """The body turned by 0.02 rad about its joints' centroid, the cameras exact, all moved by a
     similarity: aligned by the joints, each camera lands turned the other way about that centroid
     (its error by hand); the static cameras as a rig, after their own Procrustes, exactly on the
-    truth. A rig with one camera 10 cm off: the Procrustes spreads it over the rig (by hand)."""
+    truth, that Procrustes' turn the body's. The body 1 % larger about its centroid: the rig's
+    scale 1.01, the static cameras that much too near it. A rig with one camera 10 cm off: the
+    Procrustes spreads it over the rig (by hand)."""
     turn = rotvec_to_matrix(np.array([0.0, 0.02, 0.0]))
     res = perfect_result(rig, "ground_plane")
     centroid = res.joints.reshape(-1, 3).mean(0)
@@ -212,6 +214,13 @@ def test_static_cameras_also_scored_as_a_rig_after_their_own_procrustes(rig):
     assert ev.metrics["static_mcpe_m"] == pytest.approx(by_hand, rel=1e-6) and by_hand > 0.01
     assert ev.metrics["static_mcoe_rad"] == pytest.approx(0.02, rel=1e-6)
     assert ev.metrics["static_mcpe_procrustes_m"] < 1e-9 and ev.metrics["static_mcoe_procrustes_rad"] < 1e-9
+    # what the joints' alignment got wrong about the rig: the body's turn, no scale
+    assert ev.metrics["static_rig_turn_rad"] == pytest.approx(0.02, rel=1e-6) and ev.metrics["static_rig_scale"] == pytest.approx(1.0, abs=1e-9)
+    large = perfect_result(rig, "ground_plane")
+    large.joints = 1.01 * (large.joints - centroid) + centroid  # the body 1 % larger than the cameras' distances say
+    m = evaluate(similarity_moved(large, 0.8, R, t), rig).metrics
+    assert m["static_rig_scale"] == pytest.approx(1.01, rel=1e-9) and m["static_rig_turn_rad"] < 1e-6
+    assert m["static_mcpe_m"] == pytest.approx(np.linalg.norm(centres - centroid, axis=1).mean() * (1 - 1 / 1.01), rel=1e-6)
 
     two = perfect_result(rig, "ground_plane")
     two.cameras = {n: two.cameras[n] for n in ("cam0", "cam1")}

@@ -60,13 +60,16 @@ PHONES_VARIANTS = {
 PHONES_REPORTED = (
     "static_mcpe_m", "static_mcoe_rad", "static_mcpe_procrustes_m", "static_mcoe_procrustes_rad", "moving_mcpe_procrustes_m", "moving_mcoe_procrustes_rad",
     "moving_mcpe_m", "moving_mcoe_rad", "mpe_m", "ra_mpjpe_m",
-    "static_mcpe_cameras_m", "static_mcpe_scene_m", "static_mcpe_ground_m", "static_alignment_noise_m",
+    "static_mcpe_cameras_m", "static_mcpe_scene_m", "static_mcpe_ground_m", "static_alignment_noise_m", "static_rig_turn_rad", "static_rig_scale",
 )  # fmt: skip
 """``static_mcpe_procrustes_m``: the static phones as a rig after its own Procrustes, how far
 their geometry is from the truth apart from the joints' alignment (on which the goal stays);
 ``static_mcpe_cameras_m`` / ``_scene_m`` / ``_ground_m``: after the other alignments
 ``eval`` reports, and ``static_alignment_noise_m`` the error the joints' alignment alone may put
-on the static phones (docs/metrics.md, "Which alignment for the static cameras")."""
+on the static phones (docs/metrics.md, "Which alignment for the static cameras");
+``static_rig_turn_rad`` / ``static_rig_scale``: the static pair's own Procrustes after the
+joints' alignment, how far that alignment turns and scales the body's frame against the
+cameras' (docs/phone-imu.md, "What sets the 8 s static error")."""
 PHONES_GOALS = {"moving_mcpe_procrustes_m": 0.05, "moving_mcoe_procrustes_rad": 0.03, "static_mcpe_m": 0.02}
 COVERAGE = ("coverage95_joints", "coverage95_cameras")
 """Of the default variant (``imu_gyro``, with covariances), per take: the share of joint and of

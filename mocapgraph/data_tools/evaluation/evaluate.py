@@ -202,7 +202,12 @@ def _static_rig(static_est: list[np.ndarray], static_ref: list[np.ndarray]) -> d
     ``phones``, three of the bench's takes: 9-17 cm of horizontal spread), that alignment's
     rotation is a degree or two off, which alone puts a camera 8 m away 15-25 cm off. Nothing
     with fewer than two static cameras with a frame. Arrays ``(N_c, 4, 4)`` world_T_camera per
-    static camera."""
+    static camera, as the result's alignment left them.
+
+    That Procrustes, applied after the result's alignment, is what the alignment got wrong about
+    the static cameras' frame: ``static_rig_turn_rad`` its angle (the body's frame turned against
+    the cameras') and ``static_rig_scale`` its scale (above 1: the body larger than the cameras'
+    distances say, the cameras too near the person after the alignment)."""
     pairs = [(e[0], r[0]) for e, r in zip(static_est, static_ref) if len(e)]
     if len(pairs) < 2:
         return {}
@@ -212,7 +217,10 @@ def _static_rig(static_est: list[np.ndarray], static_ref: list[np.ndarray]) -> d
     except MocapgraphError:
         return {}
     moved = fit.apply_pose(est)
-    return {"static_mcpe_procrustes_m": float(M.mcpe_m(moved, ref)), "static_mcoe_procrustes_rad": float(M.mcoe_rad(moved, ref))}
+    return {
+        "static_mcpe_procrustes_m": float(M.mcpe_m(moved, ref)), "static_mcoe_procrustes_rad": float(M.mcoe_rad(moved, ref)),
+        "static_rig_turn_rad": float(relative_angle(fit.R, np.eye(3))), "static_rig_scale": float(fit.scale),
+    }  # fmt: skip
 
 
 def _static_alignments(raw: Result, capture: Capture) -> dict[str, float]:
