@@ -513,19 +513,23 @@ def test_stats_report_wall_clock_and_cpu_time(rich_run):
 
 
 @pytest.mark.slow  # ~40 s: a 3.5 s stream with its bootstrap
-def test_keypoint_offsets_measured_again_come_nearer_the_simulated_ones():
+def test_keypoint_offsets_measured_again_come_nearer_the_simulated_ones(monkeypatch):
     """``offset_updates_s``: measured again at 2.5 s on the states that left the window, the
-    detector's hip and shoulder definition offsets come nearer the simulator's (coco17: hip 3 cm
-    lateral and 2 cm forward, shoulder 1 cm lateral and 3 cm up, in the carrier's (lateral, up,
-    forward) axes) than the 1 s bootstrap's; the loop carries on with them (new factors, the
-    format's table rebuilt) and the body stays within its bound."""
-    from mocapgraph.data_tools.sim.detectors import KEYPOINT_DEFINITION_OFFSETS_M
+    detector's hip and shoulder definition offsets come nearer the simulator's (set to the
+    literature's COCO-17 definitions: hip 3 cm lateral and 2 cm forward, shoulder 1 cm lateral
+    and 3 cm up, in the carrier's (lateral, up, forward) axes) than the 1 s bootstrap's; the loop
+    carries on with them (new factors, the format's table rebuilt) and the body stays within its bound."""
+    from dataclasses import replace
 
+    from mocapgraph.data_tools.sim import detectors
+
+    fmt = "coco17"
+    truth = detectors.LITERATURE_DEFINITION_OFFSETS_M[fmt]
+    preset = detectors.DETECTOR_PRESETS["coco_hrnet"]
+    monkeypatch.setitem(detectors.DETECTOR_PRESETS, "coco_hrnet", replace(preset, faults=replace(preset.faults, keypoint_offsets_m=truth)))
     capture = synthesize("rich", seed=0, duration_s=3.5)
     fusion = OnlineFusion(static_rig(capture), OnlineOptions(lag_s=0.5, offset_updates_s=(2.5,)))
-    fmt = "coco17"
     names = get_format(fmt).names
-    truth = KEYPOINT_DEFINITION_OFFSETS_M[fmt]
     parts = [(names.index(f"left_{p}"), np.asarray(truth[p])) for p in ("hip", "shoulder")]
     boot = None
     for frame in stream(capture):

@@ -378,7 +378,7 @@ def fit_clip_offsets(clip: str | Path | None = None, person: str | int = "larges
         ``{"clip", "format", "person", "rounds", "offsets_m": {point: [x, y, z] metres, left and
         midline points}, "reprojection_px": the fit's ``{"all", "camera", "keypoint"}``,
         "committed_m": the table in :mod:`mocapgraph.body.definition_priors` for the format (or
-        None), "simulator_m": the simulator's offsets of the format by part (or None), "notes"}``.
+        None), "simulator_m": the simulator's ``realistic`` offsets of the format by part (or None), "notes"}``.
     """
     from mocapgraph.body.definition_priors import FITTED_OFFSETS_M
     from mocapgraph.data_tools.sim.detectors import KEYPOINT_DEFINITION_OFFSETS_M

@@ -8,8 +8,9 @@ lab's calibration so that the triangulated points are where the detector put the
 estimate's prior mean and start.
 
 Only formats measured on real footage are in the table; every other format's prior mean is zero.
-The values are never the simulator's (:data:`mocapgraph.data_tools.sim.detectors.KEYPOINT_DEFINITION_OFFSETS_M`):
-a synthetic test of the prior against them would be circular.
+The simulator's ``realistic`` definitions (:data:`mocapgraph.data_tools.sim.detectors.KEYPOINT_DEFINITION_OFFSETS_M`)
+come from this table too, but never a format's own entry (BlazePose takes BODY_25B's and back):
+a synthetic test of the prior against its own mean would be circular.
 """
 
 from __future__ import annotations

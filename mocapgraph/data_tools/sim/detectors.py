@@ -6,7 +6,8 @@
 0. **Definition** (``faults``, :class:`DetectorFaults`). A detector's hip, shoulder, knee or
    ankle is not the body model's point: each format point is moved by a fixed offset in the frame
    of the segment that carries it (``keypoint_offsets_m``, per format in
-   :data:`KEYPOINT_DEFINITION_OFFSETS_M`), so its image effect changes with the viewing
+   :data:`KEYPOINT_DEFINITION_OFFSETS_M`, fitted on real footage; ``heavy`` takes the
+   literature's, :data:`LITERATURE_DEFINITION_OFFSETS_M`), so its image effect changes with the viewing
    direction; then every point is scaled about the pelvis by ``size_bias``. Everything below
    acts on these points; ``DetectionInfo.body_pixels`` keeps the body's own projections.
 1. **Frame.** A point is *in frame* when it lies in front of the camera (depth > ``MIN_DEPTH_M``),
@@ -76,6 +77,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 from scipy.stats import chi2
 
+from mocapgraph.body.definition_priors import FITTED_OFFSETS_M
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS, part_name, swap_permutation
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS, PARENTS
@@ -120,7 +122,8 @@ FAULT_LEVELS: tuple[str, ...] = ("none", "realistic", "heavy")
 """How strongly simulated detectors fail (:meth:`DetectorModel.at_fault_level`)."""
 
 HEAVY_FACTOR = 2.0
-"""``heavy`` multiplies every fault rate and amplitude of ``realistic`` by this."""
+"""``heavy`` multiplies every fault rate and amplitude of ``realistic`` by this, except the
+definition offsets a detector gives for ``heavy`` itself (the literature's)."""
 
 DEFAULT_FRAME_RATE_HZ = 30.0
 """Frame rate assumed by the simulator when it is given no frame timestamps."""
@@ -138,7 +141,7 @@ the segment the point sits on (the hip point with the pelvis, the ankle point wi
 UNSIDED_PARTS = ("nose", "neck", "mid_hip")
 """Parts on the body's midline: their offsets have no lateral component."""
 
-KEYPOINT_DEFINITION_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] = {
+LITERATURE_DEFINITION_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] = {
     # COCO-17 annotations (HRNet, AlphaPose): Needham et al. 2021 found their 3D hips and knees
     # 30-50 mm and ankles 1-15 mm from marker-based joint centres; directions assumed.
     "coco17": {"shoulder": (0.010, 0.030, 0.0), "hip": (0.030, 0.0, 0.020), "knee": (0.0, 0.0, 0.020), "ankle": (0.010, 0.0, 0.0)},
@@ -150,9 +153,37 @@ KEYPOINT_DEFINITION_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] 
     # BODY_25B is trained on COCO's annotations (and its foot points)
     "openpose25b": {"shoulder": (0.010, 0.030, 0.0), "hip": (0.030, 0.0, 0.020), "knee": (0.0, 0.0, 0.020), "ankle": (0.010, 0.0, 0.0)},
 }  # fmt: skip
-"""Where each detector format puts a point relative to the body model's point of the same name:
-``(lateral, up, forward)`` metres of the left point in the frame of the segment carrying it
-(:data:`OFFSET_SEGMENTS`; the right point mirrors it). Sources in ``docs/detector_faults.md``."""
+"""The literature's keypoint definitions (measured against marker-based joint centres, about three
+times what real detectors show against this body model's points): ``heavy``'s offsets for the
+parts they name (:attr:`DetectorFaults.heavy_keypoint_offsets_m`). Axes as
+:data:`KEYPOINT_DEFINITION_OFFSETS_M`; sources in ``docs/detector_faults.md``."""
+
+
+def _real_fit(source: str, fmt: str, renamed: dict[str, str] | None = None) -> dict[str, tuple[float, float, float]]:
+    """By body part of format ``fmt``, the offsets fitted on real footage for format ``source``
+    (:data:`~mocapgraph.body.definition_priors.FITTED_OFFSETS_M`); ``renamed`` maps a part of
+    ``fmt`` to the part of ``source`` that stands for it. Parts ``source`` was not fitted on have none."""
+    fitted = {part_name(name): value for name, value in FITTED_OFFSETS_M[source].items()}
+    renamed = renamed or {}
+    parts = sorted({part_name(name) for name in get_format(fmt).names})
+    return {part: fitted[renamed.get(part, part)] for part in parts if renamed.get(part, part) in fitted}
+
+
+KEYPOINT_DEFINITION_OFFSETS_M: dict[str, dict[str, tuple[float, float, float]]] = {
+    # The real OpenPose BODY_25B fit: its body points are COCO's annotations, HALPE-26's body
+    # points follow COCO's, and BODY_25 is an OpenPose network on the same body and foot labels.
+    "coco17": _real_fit("openpose25b", "coco17"),
+    "openpose25": _real_fit("openpose25b", "openpose25"),
+    "halpe26": _real_fit("openpose25b", "halpe26"),
+    # Crosswise, the other real detector's fit: SmartMocap's prior for these two formats is their
+    # own fit, which a synthetic capture must not replay (a test of that prior would be circular).
+    "blazepose33": _real_fit("openpose25b", "blazepose33", {"foot_index": "big_toe"}),
+    "openpose25b": _real_fit("blazepose33", "openpose25b", {"big_toe": "foot_index"}),
+}
+"""Where each detector format puts a point relative to the body model's point of the same name
+under ``realistic`` faults: ``(lateral, up, forward)`` metres of the left (or midline) point in
+the frame of the segment carrying it (:data:`OFFSET_SEGMENTS`; the right point mirrors it), from
+the fits of two real detectors on the lab's footage. Sources in ``docs/detector_faults.md``."""
 
 
 def _check_triple(value, name: str, where: str, size: int) -> tuple[float, ...]:
@@ -196,6 +227,9 @@ class DetectorFaults:
             metres from the body model's point to where the detector puts it, for the left point
             in the frame of the segment carrying it (:data:`OFFSET_SEGMENTS`); right points mirror
             it, a point without a side must have no lateral part.
+        heavy_keypoint_offsets_m: by body part, the offsets ``heavy`` uses instead of twice
+            ``keypoint_offsets_m`` (the presets: :data:`LITERATURE_DEFINITION_OFFSETS_M`, the
+            literature's hips, knees, ankles and shoulders); same axes.
         size_bias: the detector's points are scaled by this about the pelvis (its person is this
             much larger or smaller than the body).
     """
@@ -209,6 +243,7 @@ class DetectorFaults:
     guess_mirror_weight: float = 0.0
     guess_error_m: float = 0.0
     keypoint_offsets_m: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    heavy_keypoint_offsets_m: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     size_bias: float = 1.0
 
     def __post_init__(self):
@@ -230,18 +265,19 @@ class DetectorFaults:
             raise MocapgraphError(f"{where}: guess_error_m must be a finite number >= 0, got {self.guess_error_m!r}")
         if not (isinstance(self.size_bias, (int, float)) and 0.5 <= self.size_bias <= 2):
             raise MocapgraphError(f"{where}: size_bias must lie in [0.5, 2], got {self.size_bias!r}")
-        for part, offset in self.keypoint_offsets_m.items():
-            if part not in OFFSET_SEGMENTS:
-                raise MocapgraphError(f"{where}: keypoint_offsets_m has unknown body part {part!r}; parts: {', '.join(OFFSET_SEGMENTS)}")
-            vec = np.asarray(offset, dtype=float)
-            if vec.shape != (3,) or not np.all(np.isfinite(vec)) or np.linalg.norm(vec) > 0.2:
-                raise MocapgraphError(f"{where}: keypoint_offsets_m[{part!r}] must be 3 finite metres, at most 0.2 m long, got {offset!r}")
-            if part in UNSIDED_PARTS and vec[0] != 0:
-                raise MocapgraphError(f"{where}: keypoint_offsets_m[{part!r}]: a point without a side has no lateral offset")
+        for name in ("keypoint_offsets_m", "heavy_keypoint_offsets_m"):
+            for part, offset in getattr(self, name).items():
+                if part not in OFFSET_SEGMENTS:
+                    raise MocapgraphError(f"{where}: {name} has unknown body part {part!r}; parts: {', '.join(OFFSET_SEGMENTS)}")
+                vec = np.asarray(offset, dtype=float)
+                if vec.shape != (3,) or not np.all(np.isfinite(vec)) or np.linalg.norm(vec) > 0.2:
+                    raise MocapgraphError(f"{where}: {name}[{part!r}] must be 3 finite metres, at most 0.2 m long, got {offset!r}")
+                if part in UNSIDED_PARTS and vec[0] != 0:
+                    raise MocapgraphError(f"{where}: {name}[{part!r}]: a point without a side has no lateral offset")
 
     def scaled(self, factor: float) -> DetectorFaults:
         """These faults with every rate and amplitude times ``factor`` (probabilities and the
-        mirror weight capped at 1; durations and confidences unchanged)."""
+        mirror weight capped at 1; durations, confidences and ``heavy_keypoint_offsets_m`` unchanged)."""
         return replace(
             self,
             body_swap_rate_hz=tuple(factor * r for r in self.body_swap_rate_hz),
@@ -385,17 +421,19 @@ class DetectorModel:
         swaps of any kind (runs or single frames), guesses, keypoint offsets or size bias, while
         noise, dropouts and outliers stay; ``"realistic"`` is the detector as it is; ``"heavy"``
         multiplies every fault rate and amplitude, the single-frame swaps' included, by
-        :data:`HEAVY_FACTOR`."""
+        :data:`HEAVY_FACTOR`, and puts the parts of ``faults.heavy_keypoint_offsets_m`` at those
+        offsets instead."""
         if level not in FAULT_LEVELS:
             raise MocapgraphError(f"unknown detector fault level {level!r}; levels: {', '.join(FAULT_LEVELS)}")
         if level == "none":
             return replace(self, body_swap_prob=0.0, limb_swap_prob=0.0, faults=DetectorFaults())
         if level == "heavy":
+            scaled = self.faults.scaled(HEAVY_FACTOR)
             return replace(
                 self,
                 body_swap_prob=min(1.0, HEAVY_FACTOR * self.body_swap_prob),
                 limb_swap_prob=min(1.0, HEAVY_FACTOR * self.limb_swap_prob),
-                faults=self.faults.scaled(HEAVY_FACTOR),
+                faults=replace(scaled, keypoint_offsets_m={**scaled.keypoint_offsets_m, **self.faults.heavy_keypoint_offsets_m}),
             )
         return self
 
@@ -420,7 +458,8 @@ DETECTOR_PRESETS: dict[str, DetectorModel] = {
         faults=DetectorFaults(
             body_swap_rate_hz=(0.015, 0.2, 0.8), limb_swap_rate_hz=(0.05, 0.6, 0.1),
             guess_prob=0.2, guess_mirror_weight=0.5, guess_error_m=0.04,
-            keypoint_offsets_m=KEYPOINT_DEFINITION_OFFSETS_M["openpose25"], size_bias=1.02,
+            keypoint_offsets_m=KEYPOINT_DEFINITION_OFFSETS_M["openpose25"],
+            heavy_keypoint_offsets_m=LITERATURE_DEFINITION_OFFSETS_M["openpose25"], size_bias=1.02,
         ),
     ),
     # Top-down with a person detector (YOLO boxes, regional multi-person pose): always reports
@@ -435,7 +474,8 @@ DETECTOR_PRESETS: dict[str, DetectorModel] = {
         faults=DetectorFaults(
             body_swap_rate_hz=(0.01, 0.15, 0.6), limb_swap_rate_hz=(0.03, 0.4, 0.06),
             guess_prob=0.4, guess_mirror_weight=0.5, guess_error_m=0.04,
-            keypoint_offsets_m=KEYPOINT_DEFINITION_OFFSETS_M["coco17"], size_bias=1.015,
+            keypoint_offsets_m=KEYPOINT_DEFINITION_OFFSETS_M["coco17"],
+            heavy_keypoint_offsets_m=LITERATURE_DEFINITION_OFFSETS_M["coco17"], size_bias=1.015,
         ),
     ),
     # Top-down HRNet-W48 on COCO: the most precise of the set.
@@ -449,7 +489,8 @@ DETECTOR_PRESETS: dict[str, DetectorModel] = {
         faults=DetectorFaults(
             body_swap_rate_hz=(0.01, 0.12, 0.5), limb_swap_rate_hz=(0.02, 0.3, 0.05),
             guess_prob=0.4, guess_mirror_weight=0.5, guess_error_m=0.04,
-            keypoint_offsets_m=KEYPOINT_DEFINITION_OFFSETS_M["coco17"], size_bias=0.99,
+            keypoint_offsets_m=KEYPOINT_DEFINITION_OFFSETS_M["coco17"],
+            heavy_keypoint_offsets_m=LITERATURE_DEFINITION_OFFSETS_M["coco17"], size_bias=0.99,
         ),
     ),
     # MediaPipe BlazePose: single-person tracker, always all 33 landmarks with a visibility
@@ -466,7 +507,8 @@ DETECTOR_PRESETS: dict[str, DetectorModel] = {
         faults=DetectorFaults(
             body_swap_rate_hz=(0.02, 0.25, 1.0), limb_swap_rate_hz=(0.03, 0.3, 0.05),
             guess_prob=0.5, guess_mirror_weight=0.5, guess_error_m=0.04,
-            keypoint_offsets_m=KEYPOINT_DEFINITION_OFFSETS_M["blazepose33"], size_bias=0.98,
+            keypoint_offsets_m=KEYPOINT_DEFINITION_OFFSETS_M["blazepose33"],
+            heavy_keypoint_offsets_m=LITERATURE_DEFINITION_OFFSETS_M["blazepose33"], size_bias=0.98,
         ),
     ),
 }  # fmt: skip
@@ -967,6 +1009,7 @@ __all__ = [
     "HEAD_SPHERE_RADIUS_M",
     "HEAVY_FACTOR",
     "KEYPOINT_DEFINITION_OFFSETS_M",
+    "LITERATURE_DEFINITION_OFFSETS_M",
     "MIN_DEPTH_M",
     "OFFSET_SEGMENTS",
     "UNSIDED_PARTS",
