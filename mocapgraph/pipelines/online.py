@@ -1133,7 +1133,7 @@ class OnlineFusion:
             self._publish_shape(self.smoother.estimate.atVector(self._shape_key))
         if self.record:
             for k, root, pose in created:
-                if k == end:
+                if k == end or k < self._bootstrap_states:
                     root, pose = self._state_guess(k)
                 self.filtered[k] = (root, pose, self.shape)
             for c, frames in self._frames.items():
