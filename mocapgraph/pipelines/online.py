@@ -1132,9 +1132,19 @@ class OnlineFusion:
         if self._shape_key is not None and self.smoother.estimate.exists(self._shape_key):
             self._publish_shape(self.smoother.estimate.atVector(self._shape_key))
         if self.record:
+            # this update's estimate of a variable, in the window or just left it (a lag shorter
+            # than the bootstrap lets its first states and frames leave in the replay's update)
+            def after(key: int) -> gtsam.Values | None:
+                return next((v for v in (self.smoother.estimate, report.left) if v.exists(key)), None)
+
             for k, root, pose in created:
-                if k == end or k < self._bootstrap_states:
-                    root, pose = self._state_guess(k)
+                # the bootstrap's states are all created by the replay's update: as its newest
+                # state is, each is recorded as that update left it (not the batch solution, in
+                # the frame the update then moved: the filtered joints' alignment to the truth
+                # took the cameras, recorded from the update, with it)
+                values = after(root_key(k)) if k == end or k < self._bootstrap_states else None
+                if values is not None:
+                    root, pose = values.atPose3(root_key(k)).matrix(), values.atVector(pose_key(k)).reshape(NUM_JOINTS - 1, 3)
                 self.filtered[k] = (root, pose, self.shape)
             for c, frames in self._frames.items():
                 for t, f in frames.items():
@@ -1142,7 +1152,8 @@ class OnlineFusion:
                         continue
                     # a held camera (a static one at the bootstrap's estimate, a UAV's at its onboard
                     # one) too: the pose its frame was explained with
-                    self.filtered_cameras[c][t] = self.smoother.estimate.atPose3(f.key).matrix() if f.key is not None and self.smoother.estimate.exists(f.key) else f.pose
+                    values = after(f.key) if f.key is not None else None
+                    self.filtered_cameras[c][t] = values.atPose3(f.key).matrix() if values is not None else f.pose
         self._retire(report.left)
         if self._offset_times and self._left_states and end * self.period >= self._offset_times[0] - _SNAP:
             self._offset_times.pop(0)
