@@ -60,7 +60,8 @@ throws (GTSAM's indeterminant-system error, ...) restarts the window from the tr
 
 **Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
 after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
-created inside a gap keeps its prediction. The *smoothed* one holds each state at its last
+created inside a gap keeps its prediction; the bootstrap's states are as the replay's update left
+them. The *smoothed* one holds each state at its last
 estimate before it left the window (the smoother's lag); a refined static camera's frames all hold
 its last estimate (from when it is held, or the stream's end). Both hold every camera (a held one at
 the pose its frames were explained with). ``docs/online.md`` has the numbers.
