@@ -105,8 +105,8 @@ class UpdateReport:
             every factor in the window: more than 65 % of its variables were affected).
         marginalised: keys that left the window (their last estimates are in ``left``).
         left: the estimates of the ``marginalised`` keys from before this update (the smoother
-            no longer holds them after it; a key added and marginalised by the same update at its
-            initial value).
+            no longer holds them after it; a key added and marginalised by the same update at
+            that update's estimate).
     """
 
     seconds: float
@@ -175,13 +175,17 @@ class FixedLagSmoother:
         self.timestamps.update(stamps)
         leaving = [k for k, t in self.timestamps.items() if t < bound]
         left = _subset(self.estimate, leaving)
-        # new variables already older than the window leave in this very update, at their start
-        left.insert(_subset(values, [k for k in leaving if not self.estimate.exists(k)]))
+        arriving = [k for k in leaving if not self.estimate.exists(k)]
         start = time.perf_counter()
         first = self._step(factors, values, [k for k in kept if self.estimate.exists(k)], set(leaving))
         relinearised, reeliminated, batch = int(first.getVariablesRelinearized()), int(first.getVariablesReeliminated()), bool(first.getBatchReorderTriggered())
         for _ in range(self.relinearisation.extra_updates):
             self._step(gtsam.NonlinearFactorGraph(), gtsam.Values(), [], set(leaving))
+        if arriving:
+            # new variables already older than the window (the online loop's bootstrap replayed
+            # with a lag shorter than the bootstrap) leave in this very update, at its estimate:
+            # at their start they were in a frame the update moved the others from
+            left.insert(_subset(self.isam.calculateEstimate(), arriving))
         if leaving:
             out = gtsam.KeyList()
             for k in leaving:

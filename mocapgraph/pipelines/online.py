@@ -61,7 +61,8 @@ throws (GTSAM's indeterminant-system error, ...) restarts the window from the tr
 
 **Outputs.** The *filtered* trajectory holds each state as first estimated: state ``i + 1`` right
 after the update that closed interval ``i`` (it used no observation later than ``t_{i+1}``); a state
-created inside a gap keeps its prediction. The *smoothed* one holds each state at its last
+created inside a gap keeps its prediction; the bootstrap's states are as the replay's update left
+them. The *smoothed* one holds each state at its last
 estimate before it left the window (the smoother's lag); a refined static camera's frames all hold
 its last estimate (from when it is held, or the stream's end). Both hold every camera (a held one at
 the pose its frames were explained with). ``docs/online.md`` has the numbers.
@@ -1175,9 +1176,19 @@ class OnlineFusion:
         if self._shape_key is not None and self.smoother.estimate.exists(self._shape_key):
             self._publish_shape(self.smoother.estimate.atVector(self._shape_key))
         if self.record:
+            # this update's estimate of a variable, in the window or just left it (a lag shorter
+            # than the bootstrap lets its first states and frames leave in the replay's update)
+            def after(key: int) -> gtsam.Values | None:
+                return next((v for v in (self.smoother.estimate, report.left) if v.exists(key)), None)
+
             for k, root, pose in created:
-                if k == end:
-                    root, pose = self._state_guess(k)
+                # the bootstrap's states are all created by the replay's update: as its newest
+                # state is, each is recorded as that update left it (not the batch solution, in
+                # the frame the update then moved: the filtered joints' alignment to the truth
+                # took the cameras, recorded from the update, with it)
+                values = after(root_key(k)) if k == end or k < self._bootstrap_states else None
+                if values is not None:
+                    root, pose = values.atPose3(root_key(k)).matrix(), values.atVector(pose_key(k)).reshape(NUM_JOINTS - 1, 3)
                 self.filtered[k] = (root, pose, self.shape)
             for c, frames in self._frames.items():
                 for t, f in frames.items():
@@ -1185,7 +1196,8 @@ class OnlineFusion:
                         continue
                     # a held camera (a static one at the bootstrap's estimate, a UAV's at its onboard
                     # one) too: the pose its frame was explained with
-                    self.filtered_cameras[c][t] = self.smoother.estimate.atPose3(f.key).matrix() if f.key is not None and self.smoother.estimate.exists(f.key) else f.pose
+                    values = after(f.key) if f.key is not None else None
+                    self.filtered_cameras[c][t] = values.atPose3(f.key).matrix() if values is not None else f.pose
         self._retire(report.left)
         if self._offset_times and self._left_states and end * self.period >= self._offset_times[0] - _SNAP:
             self._offset_times.pop(0)
