@@ -53,12 +53,20 @@ def _flip_crc(data: bytes) -> bytes:
     return data[:at] + bytes([data[at] ^ 0xFF]) + data[at + 1 :]
 
 
+def _encrypted(data: bytes) -> bytes:
+    """The archive with its first member marked encrypted in the central directory (zipfile then
+    asks for a password: a RuntimeError, which the fuzzer found)."""
+    at = data.index(b"PK\x01\x02") + 8  # the member's general-purpose flags
+    return data[:at] + bytes([data[at] | 0x01]) + data[at + 1 :]
+
+
 @pytest.mark.parametrize(
     ("rel", "damage", "message"),
     [
         (DETECTOR, _flip_crc, r"detector_openpose.npz: not a readable .npz file \(BadZipFile: Bad CRC-32"),
         (DETECTOR, lambda d: d[: len(d) // 2], r"detector_openpose.npz: not a readable .npz file \(BadZipFile"),
         (DETECTOR, lambda d: b"", r"detector_openpose.npz: not a readable .npz file"),
+        (DETECTOR, _encrypted, r"detector_openpose.npz: .*encrypted"),
         (DETECTOR, lambda d: np.lib.format.magic(1, 0), r"detector_openpose.npz: not a readable .npz file"),
         (DETECTOR, lambda d: huge_header(), r"detector_openpose.npz: not a readable .npz file"),  # an .npy where an .npz goes
         (TIMESTAMPS, lambda d: _npz_bytes(x=np.zeros(3)), r"timestamps.npy: not a readable .npy file"),  # and the reverse

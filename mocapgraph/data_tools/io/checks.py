@@ -181,6 +181,8 @@ def load_npz(path: Path, label: str, error: type[MocapgraphError]) -> dict[str, 
                 where = f"{label}: {name}"
                 if name in arrays:
                     raise error(f"{where}: appears twice in the archive")
+                if info.flag_bits & 0x1:  # zipfile would ask for a password (a RuntimeError)
+                    raise error(f"{where}: encrypted; arrays must be stored as numpy writes them")
                 with archive.open(info) as f:
                     _checked_header(f, info.file_size, where, error)
                 with archive.open(info) as f:
