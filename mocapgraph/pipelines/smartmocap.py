@@ -683,6 +683,8 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         drift = {fmt: estimate_drift(body, labelled, estimate, fmt, offsets.get(fmt), options.drift_sigmas_m) for fmt in model.formats if fmt != "body"}
         for fmt, d in drift.items():
             size = np.linalg.norm(d, axis=-1)[:, np.any(d != 0, axis=(0, 2))]
+            if size.size == 0:
+                continue  # no view of this format fell on a state (e.g. its camera's clock is off the capture's)
             notes.append(f"{fmt} keypoints: their definitions' drift over the capture estimated per state, median {100 * np.median(size):.1f} cm, 90th percentile {100 * np.percentile(size, 90):.1f} cm")
     swaps = combined_swaps(model, before, labels)
     notes += swap_notes(model.names, swaps) + focal_notes(model, bg.focal_lengths(estimate)) + imu_support_notes(bg, clock_offsets)
