@@ -85,6 +85,7 @@ from mocapgraph.body import load_body_model
 from mocapgraph.body.definition_priors import prior_offsets
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
+from mocapgraph.body.rotations import relative_angle
 from mocapgraph.body.skeleton import JOINT_NAMES, NUM_JOINTS
 from mocapgraph.data_tools.geometry.camera_model import project_points
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
@@ -1492,8 +1493,7 @@ def _heading_apart_rad(a: Result, b: Result, seconds: float) -> float:
     ``seconds`` and of ``b``'s nearest in time (two batches of the same frames)."""
     last = np.asarray(a.timestamps) > a.timestamps[-1] - seconds - _SNAP
     near = np.abs(np.asarray(b.timestamps)[None] - np.asarray(a.timestamps)[last][:, None]).argmin(1)
-    relative = np.einsum("tji,tjk->tik", a.root[last][:, :3, :3], b.root[near][:, :3, :3])
-    return float(np.median(np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))))
+    return float(np.median(relative_angle(a.root[last][:, :3, :3], b.root[near][:, :3, :3])))
 
 
 @dataclass
