@@ -31,7 +31,7 @@ BENCHES = {
     "online": (
         "the online loop (fixed-lag iSAM2) on aircap and rich: updates/s, latency, memory, filtered/smoothed/offline errors",
         "mocapgraph.benchmarks.online:bench_online",
-        {"lag_s": ("smoother window, seconds", {"flag": "--lag"}), "long_s": ("instead: one stream this long (e.g. 600), memory and latency per minute", {"flag": "--long"})},
+        {"lag_s": ("smoother window, seconds", {"flag": "--lag"}), "long_s": ("instead: streams this long (e.g. 600), a capture and its first minute played forwards and backwards; memory and latency per minute", {"flag": "--long"})},
     ),
     "colmap": (
         "COLMAP on rendered phones and rich captures: registration, its error against the truth, SmartMocap's cameras (on its own and "
