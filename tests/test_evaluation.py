@@ -294,3 +294,39 @@ def test_static_cameras_under_other_alignments(rig):
     m = evaluate(similarity_moved(perfect_result(capture, "ground_plane"), 1.0, tilt, np.zeros(3)), capture).metrics
     assert m["static_mcpe_m"] < 1e-9 and m["static_mcpe_ground_m"] > 0.5 * np.linalg.norm(centres @ tilt.T - centres, axis=1).mean() > 0.01
     assert "static_mcpe_ground_m" not in evaluate(perfect_result(rig, "ground_plane"), rig).metrics  # a world of unknown up: no ground to keep
+
+
+def test_static_views_need_no_alignment(rig):
+    """The body as each static camera sees it, unchanged by any similarity of the result: a
+    perfect result moved by one is exact. The body turned about its joints' centroid: the centroid's
+    bearings and distances stay, the turn is ``static_mcoe_rad`` (the view's third part). One
+    camera turned about an axis across its view to the centroid: its bearing and the pairs with it
+    off by that angle (by hand: three of the six pairs). The body 2 % larger about its centroid
+    (the cameras as they were): every camera 2 % too near for its size."""
+    R, t = rotvec_to_matrix(np.array([0.3, -0.2, 1.1])), np.array([1.0, -2.0, 0.5])
+    m = evaluate(similarity_moved(perfect_result(rig, "ground_plane"), 0.7, R, t), rig).metrics
+    assert m["static_view_bearing_rad"] < 1e-9 and m["static_view_distance_ratio"] == pytest.approx(1.0, abs=1e-9) and m["static_pair_turn_rad"] < 1e-6
+
+    turn = rotvec_to_matrix(np.array([0.0, 0.0, 0.02]))
+    res = perfect_result(rig, "ground_plane")
+    centroid = res.joints.reshape(-1, 3).mean(0)
+    res.joints = (res.joints - centroid) @ turn.T + centroid
+    m = evaluate(similarity_moved(res, 1.3, R, t), rig).metrics
+    assert m["static_view_bearing_rad"] < 1e-9 and m["static_view_distance_ratio"] == pytest.approx(1.0, abs=1e-9)
+    assert m["static_pair_turn_rad"] < 1e-6 and m["static_mcoe_rad"] == pytest.approx(0.02, rel=1e-6)
+
+    res = perfect_result(rig, "ground_plane")
+    pose = res.cameras["cam0"].world_T_camera
+    to_body = centroid - pose[0, :3, 3]
+    axis = np.cross(to_body, [0.3, -0.5, 0.8])
+    tilt = rotvec_to_matrix(0.01 * axis / np.linalg.norm(axis))
+    pose[:, :3, :3] = tilt @ pose[:, :3, :3]  # turned about its centre, across its view
+    m = evaluate(similarity_moved(res, 0.9, R, t), rig).metrics
+    assert m["static_view_bearing_rad"] == pytest.approx(0.01 / 4, rel=1e-6)
+    assert m["static_pair_turn_rad"] == pytest.approx(0.01 * 3 / 6, rel=1e-6)
+    assert m["static_view_distance_ratio"] == pytest.approx(1.0, abs=1e-9)
+
+    large = perfect_result(rig, "ground_plane")
+    large.joints = 1.02 * (large.joints - centroid) + centroid
+    m = evaluate(large, rig).metrics
+    assert m["static_view_distance_ratio"] == pytest.approx(1 / 1.02, rel=1e-9) and m["static_view_bearing_rad"] < 1e-9

@@ -61,6 +61,7 @@ PHONES_REPORTED = (
     "static_mcpe_m", "static_mcoe_rad", "static_mcpe_procrustes_m", "static_mcoe_procrustes_rad", "moving_mcpe_procrustes_m", "moving_mcoe_procrustes_rad",
     "moving_mcpe_m", "moving_mcoe_rad", "mpe_m", "ra_mpjpe_m",
     "static_mcpe_cameras_m", "static_mcpe_scene_m", "static_mcpe_ground_m", "static_alignment_noise_m", "static_rig_turn_rad", "static_rig_scale",
+    "static_view_bearing_rad", "static_view_distance_ratio", "static_pair_turn_rad",
 )  # fmt: skip
 """``static_mcpe_procrustes_m``: the static phones as a rig after its own Procrustes, how far
 their geometry is from the truth apart from the joints' alignment (on which the goal stays);
@@ -69,12 +70,20 @@ their geometry is from the truth apart from the joints' alignment (on which the 
 on the static phones (docs/metrics.md, "Which alignment for the static cameras");
 ``static_rig_turn_rad`` / ``static_rig_scale``: the static pair's own Procrustes after the
 joints' alignment, how far that alignment turns and scales the body's frame against the
-cameras' (docs/phone-imu.md, "What sets the 8 s static error")."""
+cameras' (docs/phone-imu.md, "What sets the 8 s static error"); ``static_view_bearing_rad`` /
+``static_view_distance_ratio`` / ``static_pair_turn_rad``: with no alignment, the direction in
+which each static phone sees the body, its distance in body sizes and the pair's relative
+rotation (docs/metrics.md, "The static cameras' views")."""
 PHONES_GOALS = {"moving_mcpe_procrustes_m": 0.05, "moving_mcoe_procrustes_rad": 0.03, "static_mcpe_m": 0.02}
 COVERAGE = ("coverage95_joints", "coverage95_cameras")
 """Of the default variant (``imu_gyro``, with covariances), per take: the share of joint and of
 camera-centre errors inside their 95 % ellipsoids (``evaluate.coverage``)."""
 COVERAGE_GOAL = (0.85, 0.99)
+"""Per take. A take's camera errors share most of their error (a static phone has one pose, a
+carried phone's frames turn with the body's frame), so even exactly calibrated covariances put a
+third or more of the takes at 1.0 and a few under the goal (docs/uncertainty.md, "Per take, the
+cameras' coverage is nearly one draw"): ``coverage_over_takes``, the mean of the takes' shares,
+is the one to hold near 0.95."""
 STATIC_GOAL_ON = "imu_gyro_long"
 """The static phones' goal is judged on the long takes (the issue's 8 s): on 3 s the joints'
 alignment, the world a user gets, rotates by about a degree from one half of a take to the other
@@ -138,6 +147,10 @@ def bench_phones(duration_s: float = 3.0, seed: int = 0, workers: int = 2, takes
         "coverage_met_every_take": {
             f"{name}.{key}": all(COVERAGE_GOAL[0] <= row[key] <= COVERAGE_GOAL[1] for row in rows[name].values())
             for name in ("imu_gyro", "imu_gyro_long") if name in rows for key in COVERAGE
+        },
+        "coverage_over_takes": {
+            f"{name}.{key}": round(float(np.mean([row[key] for row in rows[name].values() if key in row])), 4)
+            for name in ("imu_gyro", "imu_gyro_long") if name in rows for key in COVERAGE if any(key in row for row in rows[name].values())
         },
     }  # fmt: skip
 

@@ -223,6 +223,52 @@ def _static_rig(static_est: list[np.ndarray], static_ref: list[np.ndarray]) -> d
     }  # fmt: skip
 
 
+def _static_views(raw: Result, capture: Capture) -> dict[str, float]:
+    """The body as each static camera sees it, estimate against truth, with no alignment at all:
+    every value is unchanged by any similarity of the result's world (``docs/metrics.md``, "The
+    static cameras' views"). Per static camera with a frame, over the states with ground truth
+    (the joints' centroid over all of them, the body's size the joints' RMS distance from each
+    state's centroid), the means over those cameras:
+
+    - ``static_view_bearing_rad``: the angle between the directions, in the camera's frame, to the
+      joints' centroid: what the camera's image fixes (its rotation against the person);
+    - ``static_view_distance_ratio``: the camera's distance to the centroid in body sizes, the
+      estimate's over the truth's (above 1: the camera too far for the body's size);
+
+    and ``static_pair_turn_rad``, the mean over pairs of static cameras of the angle of their
+    relative rotation's error. The body's orientation against each camera, the third part, is
+    ``static_mcoe_rad`` itself: the joints' similarity's rotation does not depend on its scale,
+    so the camera's orientation error after it is the joints' turn seen from the camera. A result
+    whose world is a camera's frame per instant gets none."""
+    if raw.world_frame.startswith(PER_FRAME_CAMERA):
+        return {}
+    gt = capture.ground_truth
+    have, sel = matched_truth(raw, gt)
+    usable = np.isfinite(raw.joints[have]).all(axis=(-1, -2))
+    if usable.sum() < 1:
+        return {}
+    est_j, ref_j = raw.joints[have][usable], gt.joints[sel][usable]
+    poses = {n: (e[0], r[0]) for n, (e, r) in matched_cameras(raw, capture).items() if len(e) and not capture.camera(n).moving}
+    if not poses:
+        return {}
+
+    def size(joints: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((joints - joints.mean(axis=1, keepdims=True)) ** 2, axis=-1))))
+
+    sizes = size(est_j), size(ref_j)
+    bearing, ratio = [], []
+    for e, r in poses.values():
+        seen = [(j.reshape(-1, 3) - T[:3, 3]) @ T[:3, :3] for j, T in ((est_j, e), (ref_j, r))]  # camera_T_world · joints
+        centroids = [s.mean(axis=0) for s in seen]
+        bearing.append(float(np.arctan2(np.linalg.norm(np.cross(*centroids)), centroids[0] @ centroids[1])))  # exact at small angles, where arccos is not
+        ratio.append(float((np.linalg.norm(centroids[0]) / sizes[0]) / (np.linalg.norm(centroids[1]) / sizes[1])))
+    out = {"static_view_bearing_rad": float(np.mean(bearing)), "static_view_distance_ratio": float(np.mean(ratio))}
+    pairs = [(a, b) for k, a in enumerate(poses.values()) for b in list(poses.values())[k + 1 :]]
+    if pairs:
+        out["static_pair_turn_rad"] = float(np.mean([relative_angle(a[0][:3, :3].T @ b[0][:3, :3], a[1][:3, :3].T @ b[1][:3, :3]) for a, b in pairs]))
+    return out
+
+
 def _static_alignments(raw: Result, capture: Capture) -> dict[str, float]:
     """The static cameras' error under alignments other than the evaluation's similarity over
     the joints, and how well the joints fix that one's rotation (``docs/metrics.md``,
@@ -342,6 +388,7 @@ def evaluate(result: Result, capture: Capture) -> Evaluation:
         out["static_mcoe_rad"] = float(M.mcoe_rad(np.concatenate(static_est), np.concatenate(static_ref)))
         out.update(_static_rig(static_est, static_ref))
         out.update(_static_alignments(raw, capture))
+        out.update(_static_views(raw, capture))
     if moving_est:
         # after the result's alignment only (the ground-plane frame's similarity), not per camera
         out["moving_mcpe_m"] = float(M.mcpe_m(np.concatenate([e for e, _ in moving_est]), np.concatenate([r for _, r in moving_est])))
