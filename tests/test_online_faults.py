@@ -145,12 +145,14 @@ def test_gps_outage_on_one_uav():
         near = [int(np.argmin(np.abs(truth.timestamps - t))) for t in result.timestamps[mask]]
         return float(np.linalg.norm(result.joints[mask] - truth.joints[near], axis=-1).mean())
 
-    # measured 0.50 against 0.47 m during (0.52 / 0.52 before the AirCap rig's regulariser on the
+    # measured 0.53 against 0.47 m during (0.52 / 0.52 before the AirCap rig's regulariser on the
     # joints the pose GMM leaves out; 0.95 / 0.47 with it while a camera alone in its update could
     # not relabel its whole body: uav2's detector flipped at 3.0-3.2 s with uav3 silent and the body,
     # held to that one flipped view, jumped 3.3 m and turned 75 deg; docs/online.md). After the
-    # return 0.53 against 0.41 m (0.39 / 0.45 before), worst at 4.25-4.5 s as uav2's 0.6 s flip ends
+    # return 0.46 against 0.45 m; 1.30 against 0.40 m while a tie of two cameras (uav2 flipped at
+    # 3.61-4.25 s, uav3 or the returning uav1 not) refused the relabelling: the body was lost at
+    # 4.55-4.75 s (docs/online.md, "Ties in the vote"; the bound is back at 1.3x, 1.4x for that)
     during = (smoothed.timestamps > outage[0]) & (smoothed.timestamps < outage[1])
     assert error(smoothed, during) < 1.2 * error(reference, during)
     back = smoothed.timestamps > outage[1] + 0.3
-    assert error(smoothed, back) < 1.4 * error(reference, back)
+    assert error(smoothed, back) < 1.3 * error(reference, back)

@@ -20,8 +20,8 @@ weak pose regulariser, and camera variables:
   samples received so far (:class:`~mocapgraph.graphs.navigation.IncrementalNavigation`); a GPS
   outage leaves that fusion coasting on the IMU (flag ``camera_prior_coasting``). A static camera
   with a calibration is held at it. A UAV detection may relabel its whole body (its detector's
-  front/back flip) only in a minority of its update's cameras, or alone in it on its onboard estimate
-  (``uav_body_swaps``), and the joints the pose GMM leaves out (spine3, collars, feet) are held at
+  front/back flip) unless most of its update's cameras see one, in a tie (one of two, or alone) only
+  on its onboard estimate (``uav_body_swaps``), and the joints the pose GMM leaves out (spine3, collars, feet) are held at
   0.2 rad (``unmodelled_sigma_rad``): else a flip was explained by turning the upper body round on them.
 - **Uncalibrated rigs** (SmartMocap): a static camera is one variable kept in the window (under a
   prior at the bootstrap's estimate: the body states leaving the window leave their information on
@@ -219,10 +219,11 @@ class OnlineOptions:
     # 36.9 / 39.3 / 33.5 mm and seed 1's cameras 17.9 -> 21.7 mm; docs/online.md).
     unmodelled_sigma_rad: float | None | str = 0.2
     # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
-    # only while fewer of an update's cameras take it than keep their body as detected, or by a
-    # camera alone in its update on its onboard estimate (decided at the new states' prediction:
-    # when most views see the body flipped, the prediction is turned round, not their detectors; a
-    # lone view refused it dragged the body 3.3 m round through a GPS outage); "none": never (as
+    # unless more of an update's cameras take it than keep their body as detected; in a tie (one
+    # camera of two, or alone in its update) only on the onboard estimate (decided at the new
+    # states' prediction: when most views see the body flipped, the prediction is turned round,
+    # not their detectors; a lone view refused it dragged the body 3.3 m round through a GPS
+    # outage, one of two refused it lost the body after the outage); "none": never (as
     # graph.moving_body_swaps=False). Always allowed, a body once turned round stayed so (aircap
     # 10 s: 216 of 267 relabellings not in the truth); never allowed, a flip in one view of three
     # was explained by twisting the body (docs/online.md).
@@ -1265,13 +1266,15 @@ class OnlineFusion:
 
     def _vote_body_swaps(self) -> None:
         """``uav_body_swaps="minority"``: each UAV camera of the update sees the body flipped or
-        not at the new states' prediction (its newest detection's labelling there); when two
-        cameras or more are in the update and as many see it flipped as not, none may relabel
-        (the prediction is what is turned round). A camera alone in its update may, on its
-        onboard estimate: nothing says the prediction is turned, and a body held to a single
-        flipped view was dragged round (one UAV without its onboard estimate: 3.3 m and 75 deg
-        off); not on the GPS/IMU fusion's prior, 1 m off, where such lone flips were not the
-        detector's (aircap 10 s: 6 of 6 not in the truth, MPJPE 0.98 -> 2.99 m; docs/online.md)."""
+        not at the new states' prediction (its newest detection's labelling there); when more of
+        the update's cameras see it flipped than not, none may relabel (the prediction is what is
+        turned round). A tie (one camera of two, or a camera alone in its update) may relabel on
+        the onboard estimate: nothing says the prediction is turned, and it cannot turn round in
+        a grid interval, while a body held to a flipped view was dragged round (a camera alone:
+        3.3 m and 75 deg off; one of two, with a UAV's onboard estimate out: lost, 2.5 m and 118
+        deg off after the estimate returned); not where a flipped camera rests on the GPS/IMU
+        fusion's prior, 1 m off, where such lone flips were not the detector's (aircap 10 s: 6 of
+        6 not in the truth, MPJPE 0.98 -> 2.99 m; docs/online.md, "Ties in the vote")."""
         votes, self._body_votes = self._body_votes, []
         if not votes:
             return
@@ -1286,8 +1289,10 @@ class OnlineFusion:
             factor.error(values)  # sets labelling.choice at these values
             seen[c] = (bool(labelling.choice[0] == body), fused)
         flipped = sum(f for f, _ in seen.values())
-        alone = len(seen) == 1 and not next(iter(seen.values()))[1]
-        if flipped and not alone and 2 * flipped >= len(seen):
+        # one camera alone is a tie too: it against the prediction
+        tie = len(seen) == 1 or 2 * flipped == len(seen)
+        most = len(seen) > 1 and 2 * flipped > len(seen)
+        if most or (flipped and tie and any(f and fused for f, fused in seen.values())):
             for _, labelling, _, _ in votes:
                 self.stats.body_swaps_refused += int(labelling.choice[0] == body)
                 labelling.allowed[0, body] = False
