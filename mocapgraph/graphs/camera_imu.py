@@ -255,7 +255,6 @@ def track_cost(
     the camera cannot mimic without more than 10 m/s² (docs/phone-imu.md)."""
     points, observed, weights, K = views
     shifted = imu.shifted(offset_s)
-    params = shifted.params(noise)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     keys = [camera_key(0, j) for j in range(len(times))]
     for j, key in enumerate(keys):
@@ -265,21 +264,31 @@ def track_cost(
             graph.add(camera_points_factor(key, points[j][use], observed[j][use], K, sigma_px, 2.0))
     for triple in zip(range(len(times) - 2), range(1, len(times) - 1), range(2, len(times))):
         graph.add(camera_acceleration_factor([keys[j] for j in triple], times[list(triple)], sigma_m_s2))
-    previous = None
+    add_gyro_chain(graph, values, shifted, times, keys, noise)
+    lm = gtsam.LevenbergMarquardtParams()
+    lm.setMaxIterations(iterations)
+    return float(graph.error(gtsam.LevenbergMarquardtOptimizer(graph, values, lm).optimize()))
+
+
+def add_gyro_chain(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, imu: CameraImu, times: np.ndarray, keys: list[int], noise: FusionNoise = PHONE_GYRO_NOISE) -> int:
+    """The gyroscope between consecutive poses ``keys`` at ``times (M,)`` that ``imu`` covers
+    (:func:`~mocapgraph.factors.camera_priors.camera_gyro_factor`), its bias a state per pose
+    (``camera_bias_key(0, j)``, inserted at zero into ``values``) under its prior at the first
+    pose of each covered run and its walk between poses; returns how many steps it holds."""
+    params = imu.params(noise)
+    previous, steps = None, 0
     for a, b in zip(range(len(times) - 1), range(1, len(times))):
-        if not shifted.covers(float(times[a]), float(times[b])):
+        if not imu.covers(float(times[a]), float(times[b])):
             continue
         for j in (a, b):
             if not values.exists(camera_bias_key(0, j)):
                 values.insert(camera_bias_key(0, j), gtsam.imuBias.ConstantBias())
         if a != previous:
             graph.add(bias_prior(camera_bias_key(0, a), noise))
-        graph.add(camera_gyro_factor(keys[a], keys[b], camera_bias_key(0, a), shifted.gyro_increment(float(times[a]), float(times[b]), params)))
+        graph.add(camera_gyro_factor(keys[a], keys[b], camera_bias_key(0, a), imu.gyro_increment(float(times[a]), float(times[b]), params)))
         graph.add(bias_walk_factor(camera_bias_key(0, a), camera_bias_key(0, b), float(times[b] - times[a]), noise))
-        previous = b
-    lm = gtsam.LevenbergMarquardtParams()
-    lm.setMaxIterations(iterations)
-    return float(graph.error(gtsam.LevenbergMarquardtOptimizer(graph, values, lm).optimize()))
+        previous, steps = b, steps + 1
+    return steps
 
 
 def estimate_time_offset(
@@ -292,14 +301,32 @@ def estimate_time_offset(
     neighbours. Every offset is scored on the same frames: those inside the log at both ends of
     the grid. Returns the offset, the grid ``(G,)`` and the costs ``(G,)``; a NaN offset
     when fewer than three frames are."""
-    grid = np.arange(-max_offset_s, max_offset_s + 0.5 * step_s, step_s)
+    grid = offset_grid(max_offset_s, step_s)
+    keep = frames_inside(imu, times, grid)
+    if len(keep) < 3:
+        return float("nan"), grid, np.full(len(grid), np.nan)
+    views = tuple(v[keep] for v in views[:3]) + (views[3],)
+    return grid_minimum(lambda o: track_cost(imu, o, times[keep], start[keep], views, noise, **costs), max_offset_s, step_s)
+
+
+def offset_grid(max_offset_s: float, step_s: float) -> np.ndarray:
+    """``(G,)`` the clock offsets tried: ``[-max_offset_s, max_offset_s]``, ``step_s`` apart."""
+    return np.arange(-max_offset_s, max_offset_s + 0.5 * step_s, step_s)
+
+
+def frames_inside(imu: CameraImu, times: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """``(M',)`` the consecutive frames at ``times (M,)`` from the first to the last that lie
+    inside the log shifted by either end of the offsets' ``grid``: every offset is scored on them."""
     ends = [imu.shifted(float(o)) for o in (grid[0], grid[-1])]
     inside = [j for j in range(len(times)) if all(e.t[0] <= times[j] <= e.t[-1] for e in ends)]
-    if len(inside) < 3:
-        return float("nan"), grid, np.full(len(grid), np.nan)
-    keep = np.arange(inside[0], inside[-1] + 1)
-    views = tuple(v[keep] for v in views[:3]) + (views[3],)
-    scores = np.array([track_cost(imu, float(o), times[keep], start[keep], views, noise, **costs) for o in grid])
+    return np.arange(inside[0], inside[-1] + 1) if inside else np.zeros(0, dtype=int)
+
+
+def grid_minimum(cost, max_offset_s: float, step_s: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """The offset minimising ``cost(offset_s) -> float`` over :func:`offset_grid`, refined by a
+    parabola through the best and its neighbours; with the grid ``(G,)`` and its costs ``(G,)``."""
+    grid = offset_grid(max_offset_s, step_s)
+    scores = np.array([cost(float(o)) for o in grid])
     k = int(np.argmin(scores))
     best = float(grid[k])
     if 0 < k < len(grid) - 1:

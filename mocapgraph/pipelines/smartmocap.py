@@ -64,7 +64,7 @@ from mocapgraph.graphs.state_model import Estimate, StateModel
 from mocapgraph.pipelines.executors import make_executor
 from mocapgraph.pipelines.observations import camera_imus, capture_state_model
 from mocapgraph.pipelines.reference_cameras import SOURCES as CAMERA_SOURCES
-from mocapgraph.pipelines.reference_cameras import ReferenceTracks, load_camera_reference, reference_tracks
+from mocapgraph.pipelines.reference_cameras import ReferenceTracks, load_camera_reference, reference_clock_offsets, reference_tracks
 from mocapgraph.pipelines.results import (
     clock_offset_parameters,
     combined_swaps,
@@ -541,8 +541,17 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
     stitched = stitch(body, model, [(a, b, est) for (a, b), (est, _) in zip(bounds, solved)])
     clock_offsets: dict[int, float] = {}
     if imu and options.imu_max_offset_s is not None:
-        # each log's clock against its camera's, on the stitched body (docs/phone-imu.md)
-        imu, clock_offsets = estimated_clock_offsets(body, model, stitched, imu, options.imu_max_offset_s, options.graph.imu_noise)
+        # each log's clock against its camera's: on a reference's rotations where it registered
+        # the camera, else on the stitched body (docs/phone-imu.md)
+        from_reference = {} if camera_reference is None else reference_clock_offsets(
+            camera_reference, model, imu, options.imu_max_offset_s, options.reference_sigmas[0], options.graph.imu_noise
+        )  # fmt: skip
+        rest = {c: log for c, log in imu.items() if c not in from_reference}
+        shifted, clock_offsets = estimated_clock_offsets(body, model, stitched, rest, options.imu_max_offset_s, options.graph.imu_noise)
+        imu = {**shifted, **{c: imu[c].shifted(offset) for c, offset in from_reference.items()}}
+        clock_offsets.update(from_reference)
+        notes += [f"camera {model.names[c]}: its IMU log's clock offset found on its turns between the frames the reference {camera_reference.name!r} registered"
+                  for c in from_reference]  # fmt: skip
     log.info("smartmocap: chunks %.2f s median; stitched; final optimisation", np.median(chunk_seconds))
 
     learned = LearnedPriors.load(options.graph.pose_prior, options.motion_prior)
