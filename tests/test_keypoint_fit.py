@@ -273,6 +273,35 @@ def test_unmapped_points_are_not_reported(body):
     assert points["left_hip"] < 1e-6 and points["nose"] < 1e-6
 
 
+def test_the_hips_shift_is_held_at_the_prior(body):
+    """With ``hold_root_shift`` the hips (the points the pelvis carries) keep the prior's up and
+    forward parts and only their lateral part is measured; every other point is measured as
+    without it. With the body's root 1 cm behind the truth in its own frame (the lean the rounds
+    showed on ``rich``), the plain measure puts that centimetre into the hips' forward part and
+    every other point's, while the held hips stay at the prior."""
+    truth = known_offsets()
+    names = get_format(FMT).names
+    hips = [names.index("left_hip"), names.index("right_hip")]
+    prior = np.zeros_like(truth)
+    prior[hips] = [(0.02, -0.01, 0.005), (-0.02, -0.01, 0.005)]
+    model, est = scene(body, truth)
+    n = 2 * 60
+    measured = prior + (truth - prior) * n / (n + PRIOR_FRAMES)
+    plain = estimate_offsets(body, model, est, FMT, prior)
+    held_fit = estimate_offsets(body, model, est, FMT, prior, hold_root_shift=True)
+    others = np.setdiff1d(np.arange(len(names)), hips)
+    np.testing.assert_allclose(plain.offsets, measured, atol=1e-6)
+    np.testing.assert_allclose(held_fit.offsets[others], measured[others], atol=1e-6)
+    np.testing.assert_allclose(held_fit.offsets[hips, 0], measured[hips, 0], atol=1e-6)
+    np.testing.assert_array_equal(held_fit.offsets[hips, 1:], prior[hips, 1:])
+    behind = replace(est, roots=est.roots.copy())
+    behind.roots[:, :3, 3] -= 0.01 * est.roots[:, :3, 2]  # the root's +Z is the body's forward
+    leaned = estimate_offsets(body, model, behind, FMT, prior, hold_root_shift=True)
+    shift = (prior[hips] + (truth[hips] + [0.0, 0.0, 0.01] - prior[hips]) * n / (n + PRIOR_FRAMES))[:, 2]
+    np.testing.assert_allclose(estimate_offsets(body, model, behind, FMT, prior).offsets[hips, 2], shift, atol=1e-6)
+    np.testing.assert_array_equal(leaned.offsets[hips, 1:], prior[hips, 1:])
+
+
 @pytest.mark.slow
 def test_offsets_measured_again_each_round_come_nearer_the_truth(monkeypatch):
     """SmartMocap on ``rich`` (2 s, realistic faults but the literature's COCO-17 definitions,
@@ -291,7 +320,9 @@ def test_offsets_measured_again_each_round_come_nearer_the_truth(monkeypatch):
     capture = synthesize("rich", seed=0, duration_s=2.0, detector_faults="realistic")
     hips, mpe = {}, {}
     for rounds in (1, 4):
-        result = run_smartmocap(capture, SmartmocapOptions(covariances=False, motion_prior="none", workers=1, offset_rounds=rounds))
+        # the hips' forward part measured (hold_root_offsets off): the rounds' own behaviour
+        options = SmartmocapOptions(covariances=False, motion_prior="none", workers=1, offset_rounds=rounds, hold_root_offsets=False)
+        result = run_smartmocap(capture, options)
         hips[rounds] = np.array(result.parameters["keypoint_offsets_m"][FMT]["left_hip"])
         mpe[rounds] = evaluate(result, capture).metrics["mpe_m"]
     simulated = np.array(literature["hip"])

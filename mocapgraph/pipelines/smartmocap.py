@@ -131,6 +131,9 @@ class SmartmocapOptions:
     # every format starts from the first solve's measure, shrunk towards zero (the only choice
     # for formats never fitted on real footage).
     offset_prior: str = "fitted"
+    # The hips' up and forward offsets held at the prior (graphs.keypoint_fit.estimate_offsets'
+    # hold_root_shift): the root's own position, which the rounds cannot tell from them.
+    hold_root_offsets: bool = True
     # "points": the static cameras adjusted last on free points, as the generic self-calibration
     # does (graphs.point_bundle), then held while the body is solved once more to them: a
     # detector's points are not the body's, and free points absorb that where a body cannot.
@@ -608,7 +611,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         priors = {fmt: prior_offsets(fmt) for fmt in model.formats} if options.offset_prior == "fitted" else {}
         priors = {fmt: prior for fmt, prior in priors.items() if prior is not None}
         solved_model = model.relabelled(bg.relabelled(estimate))
-        fits = [estimate_offsets(body, solved_model, estimate, fmt, priors.get(fmt)) for fmt in model.formats]
+        fits = [estimate_offsets(body, solved_model, estimate, fmt, priors.get(fmt), options.hold_root_offsets) for fmt in model.formats]
         # a format fitted on real footage starts at its table: the first measure is taken on a
         # body that leaned towards the detector's points, and the rounds keep much of that lean
         # (a wider pelvis explains a lateral hip offset as well as the offset does)
@@ -640,7 +643,7 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
                     # (rich 6 s: MPE 1.50 cm with 4 rounds) let the lab clip's offsets, fitted
                     # with its cameras held, drift along the limbs (ankles 1.4 -> 3.1 cm up,
                     # heels 1.6 -> 3.3, reprojection 9.9 px), where the body's bone lengths trade with them
-                    fits = [estimate_offsets(body, solved_model, estimate, fmt, priors.get(fmt)) for fmt in model.formats]
+                    fits = [estimate_offsets(body, solved_model, estimate, fmt, priors.get(fmt), options.hold_root_offsets) for fmt in model.formats]
                     offsets = {fit.fmt: fit.offsets for fit in fits}
         for fit in fits:
             notes.append(f"{fit.fmt} keypoints: definition offsets estimated from {int(fit.frames.max(initial=0))} frames, up to "
