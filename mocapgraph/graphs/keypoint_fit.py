@@ -214,13 +214,21 @@ def refine_drift_in_images(
         G = fk.rotations[idx, carrier[k]]  # (M, 3, 3) carrier frames in the world
         views = np.bincount(idx, minlength=N)[idx]
         focal = Kc[:, [0, 1], [0, 1]]  # (M, 2)
+        base = fk.keypoints[idx, k]
+
+        def pixels(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """Camera-frame points (M, 3), whether ahead of the camera, pixel residuals (M, 2)."""
+            p = np.einsum("mab,mb->ma", R, base + np.einsum("mab,mb->ma", G, d[idx])) + t
+            ahead = p[:, 2] > 0
+            z = np.where(ahead, p[:, 2], 1.0)
+            return p, ahead, p[:, :2] / z[:, None] * focal + Kc[:, :2, 2] - x
+
         d = out[:, k].copy()
+        _, ahead, residual = pixels(d)
+        before = np.median(np.linalg.norm(residual[ahead], axis=1)) if ahead.any() else np.inf
         for _ in range(DRIFT_ITERATIONS):
-            p = np.einsum("mab,mb->ma", R, fk.keypoints[idx, k] + np.einsum("mab,mb->ma", G, d[idx])) + t  # camera frame
-            z = p[:, 2]
-            ahead = z > 0
-            z = np.where(ahead, z, 1.0)
-            residual = p[:, :2] / z[:, None] * focal + Kc[:, :2, 2] - x
+            p, ahead, residual = pixels(d)
+            z = np.where(ahead, p[:, 2], 1.0)
             dp = np.zeros((len(z), 2, 3))  # d(pixel)/d(camera point)
             dp[:, [0, 1], [0, 1]] = focal / z[:, None]
             dp[:, :, 2] = -focal * p[:, :2] / z[:, None] ** 2
@@ -234,12 +242,15 @@ def refine_drift_in_images(
             H = prior.copy()
             for n in np.unique(idx):
                 H[3 * n : 3 * n + 3, 3 * n : 3 * n + 3] += blocks[n]
-            g = gradients
-            change = np.linalg.solve(H, -g).reshape(N, 3)
+            change = np.linalg.solve(H, -gradients).reshape(N, 3)
             d += change
             if np.abs(change).max() < 1e-5:
                 break
-        out[:, k] = d
+        _, ahead, residual = pixels(d)
+        # The kernel redescends: where most views sit beyond it (a solve that failed), the
+        # refinement gives them up and the point's median gets worse; such a point keeps its samples'.
+        if ahead.any() and np.median(np.linalg.norm(residual[ahead], axis=1)) <= before:
+            out[:, k] = d
     return out
 
 
