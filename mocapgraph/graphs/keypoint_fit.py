@@ -182,6 +182,91 @@ def estimate_drift(
     return out
 
 
+DRIFT_GM_SIGMA_PX = 10.0
+"""Geman-McClure scale (pixels) of :func:`refine_drift_in_images`: the free points' (the static
+cameras' adjustment and the generic baseline use it), so a gross miss counts as little there."""
+DRIFT_ITERATIONS = 6
+"""Gauss-Newton steps of :func:`refine_drift_in_images` at most (it stops once a step moves no
+point by more than 0.01 mm)."""
+
+
+def refine_drift_in_images(
+    body: BodyModel, model: StateModel, estimate: Estimate, fmt: str, offsets: np.ndarray | None, sigmas: tuple[float, float, float], drift: np.ndarray
+) -> np.ndarray:
+    """``(N, K, 3)`` metres, carrier frames: :func:`estimate_drift`'s ``drift`` refined against the
+    detections themselves instead of against one triangulated sample per state.
+
+    Per point, over all states at once, the drift minimises the Geman-McClure reprojection error
+    (scale :data:`DRIFT_GM_SIGMA_PX`) of every view at a state, with the body's point moved by it,
+    plus the same smoothing prior as :func:`estimate_drift` (``σ_step``, ``σ_prior``), by
+    iteratively reweighted Gauss-Newton. A view's pixel σ is the sample's ``σ_obs`` seen from that
+    camera, ``σ_obs · f / z · √n`` (``z`` its depth, ``n`` the views of the point at that state):
+    the same model as the samples', in pixels. What the sample's DLT cannot do: weigh each view by
+    its own reprojection, and leave a view's gross miss aside without losing the state. The body
+    and cameras stay as solved. Points the body has no counterpart for stay at zero."""
+    sigma_obs, sigma_step, sigma_prior = sigmas
+    table, fk = _posed(body, estimate, fmt, offsets)
+    N, K = fk.keypoints.shape[:2]
+    carrier = carrier_joints(table)
+    step = np.diff(np.eye(N), axis=0)
+    prior = np.kron(step.T @ step / sigma_step**2 + np.eye(N) / sigma_prior**2, np.eye(3))  # (3N, 3N)
+    rows = [(i, o) for i, obs in enumerate(model.states) for o in obs if o.fmt == fmt and o.fraction == 0.0]
+    out = np.array(drift, dtype=float, copy=True)
+    if not rows:
+        return out
+    state = np.array([i for i, _ in rows])
+    camera_T_world = np.stack([np.linalg.inv(estimate.cameras[o.camera][o.frame]) for _, o in rows])
+    intrinsics = np.stack([_intrinsics(model, estimate, o.camera) for _, o in rows])
+    observed = np.stack([o.observed for _, o in rows])  # (M, K, 2)
+    weights = np.stack([o.weights for _, o in rows])  # (M, K)
+    for k in np.flatnonzero(table.mapped):
+        use = (weights[:, k] > 0) & np.isfinite(observed[:, k]).all(axis=1)
+        if not use.any():
+            continue
+        idx, R, t, Kc, x = state[use], camera_T_world[use, :3, :3], camera_T_world[use, :3, 3], intrinsics[use], observed[use, k]
+        G = fk.rotations[idx, carrier[k]]  # (M, 3, 3) carrier frames in the world
+        views = np.bincount(idx, minlength=N)[idx]
+        focal = Kc[:, [0, 1], [0, 1]]  # (M, 2)
+        base = fk.keypoints[idx, k]
+
+        def pixels(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """Camera-frame points (M, 3), whether ahead of the camera, pixel residuals (M, 2)."""
+            p = np.einsum("mab,mb->ma", R, base + np.einsum("mab,mb->ma", G, d[idx])) + t
+            ahead = p[:, 2] > 0
+            z = np.where(ahead, p[:, 2], 1.0)
+            return p, ahead, p[:, :2] / z[:, None] * focal + Kc[:, :2, 2] - x
+
+        d = out[:, k].copy()
+        _, ahead, residual = pixels(d)
+        before = np.median(np.linalg.norm(residual[ahead], axis=1)) if ahead.any() else np.inf
+        for _ in range(DRIFT_ITERATIONS):
+            p, ahead, residual = pixels(d)
+            z = np.where(ahead, p[:, 2], 1.0)
+            dp = np.zeros((len(z), 2, 3))  # d(pixel)/d(camera point)
+            dp[:, [0, 1], [0, 1]] = focal / z[:, None]
+            dp[:, :, 2] = -focal * p[:, :2] / z[:, None] ** 2
+            J = dp @ R @ G  # (M, 2, 3) d(pixel)/d(drift)
+            sigma_px = sigma_obs * focal[:, 0] / z * np.sqrt(views)
+            robust = (DRIFT_GM_SIGMA_PX**2 / (DRIFT_GM_SIGMA_PX**2 + (residual**2).sum(axis=1))) ** 2  # Geman-McClure's IRLS weight
+            information = np.where(ahead, robust / sigma_px**2, 0.0)
+            blocks, gradients = np.zeros((N, 3, 3)), prior @ d.reshape(-1)
+            np.add.at(blocks, idx, np.einsum("mia,mib,m->mab", J, J, information))
+            np.add.at(gradients.reshape(N, 3), idx, np.einsum("mia,mi,m->ma", J, residual, information))
+            H = prior.copy()
+            for n in np.unique(idx):
+                H[3 * n : 3 * n + 3, 3 * n : 3 * n + 3] += blocks[n]
+            change = np.linalg.solve(H, -gradients).reshape(N, 3)
+            d += change
+            if np.abs(change).max() < 1e-5:
+                break
+        _, ahead, residual = pixels(d)
+        # The kernel redescends: where most views sit beyond it (a solve that failed), the
+        # refinement gives them up and the point's median gets worse; such a point keeps its samples'.
+        if ahead.any() and np.median(np.linalg.norm(residual[ahead], axis=1)) <= before:
+            out[:, k] = d
+    return out
+
+
 def _observation_errors(body: BodyModel, model: StateModel, estimate: Estimate, offsets: dict[str, np.ndarray] | None = None, drift: dict[str, np.ndarray] | None = None):
     """Per observation at a state (not interpolated): ``(state, observation, (K,) pixel errors,
     (K,) usable)``, the body posed with the formats' ``offsets`` (and per-state ``drift``); a

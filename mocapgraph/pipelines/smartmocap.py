@@ -57,7 +57,7 @@ from mocapgraph.graphs.initialisation import (
     view_bodies,
     view_swaps,
 )
-from mocapgraph.graphs.keypoint_fit import estimate_drift, estimate_offsets, outlier_views, reprojection_medians
+from mocapgraph.graphs.keypoint_fit import estimate_drift, estimate_offsets, outlier_views, refine_drift_in_images, reprojection_medians
 from mocapgraph.graphs.point_bundle import StaticRefinement, refine_static_cameras
 from mocapgraph.graphs.solver import held, solve_staged
 from mocapgraph.graphs.state_model import Estimate, StateModel
@@ -159,7 +159,11 @@ class SmartmocapOptions:
     # its reprojection, the body and cameras as solved (so neither can change). On the lab clip
     # (largest person, one run) the reprojection went 8.67 -> 7.30 px, the drift 1.0 cm median,
     # 4.0 cm at the 90th percentile; (1, 2, 5) cm: 7.0 px, measured after the fact. None: off.
-    drift_sigmas_m: tuple[float, float, float] | None = (0.01, 0.01, 0.03)
+    # The σs by maximum likelihood of that model on each real clip's samples (the body's points
+    # against the points its cameras triangulate): BlazePose (0.74, 0.67, 2.84) cm, BODY_25B
+    # (0.65, 0.52, 2.94) cm; these are both rounded, and each clip's reprojection with the other
+    # clip's σs is the same to 0.03 px (docs/smartmocap.md, "Definitions that move").
+    drift_sigmas_m: tuple[float, float, float] | None = (0.007, 0.006, 0.03)
     # After the first final pass, every camera-frame's labels checked against all the placed
     # cameras' epipolar geometry (graphs.initialisation.posed_view_swaps) and the sequence solved
     # again on them (with graph.swaps only).
@@ -692,7 +696,14 @@ def run_smartmocap(capture: Capture, options: SmartmocapOptions | None = None, c
         # the body moved back towards its priors and the reprojection came out 0.5 px higher
         # (lab clip, the largest person: 7.86 against 7.38 px)
         labelled = model.relabelled(labels)
-        drift = {fmt: estimate_drift(body, labelled, estimate, fmt, offsets.get(fmt), options.drift_sigmas_m) for fmt in model.formats if fmt != "body"}
+        # then against the views themselves (each weighed by its own reprojection, a gross miss
+        # left aside by the free points' kernel): on the lab clips, with the σs learned on the
+        # other clip, 6.74 -> 6.46 px (BlazePose) and 6.17 -> 5.95 px (BODY_25B); docs/smartmocap.md
+        drift = {
+            fmt: refine_drift_in_images(body, labelled, estimate, fmt, offsets.get(fmt), options.drift_sigmas_m,
+                                        estimate_drift(body, labelled, estimate, fmt, offsets.get(fmt), options.drift_sigmas_m))
+            for fmt in model.formats if fmt != "body"
+        }  # fmt: skip
         for fmt, d in drift.items():
             size = np.linalg.norm(d, axis=-1)[:, np.any(d != 0, axis=(0, 2))]
             if size.size == 0:
