@@ -43,7 +43,9 @@ are flagged ``bootstrap`` in the results: their starting values saw the whole bo
 **The loop.** Observations are gathered per grid interval ``(t_i, t_{i+1}]``; the first one of a
 later interval closes it: one smoother update creates the states up to ``t_{i+1}`` (each starting
 from the tracker's constant-velocity prediction, held after ``coast_s`` without observations) and
-adds the interval's factors; iSAM2 does not relinearise by default (:class:`OnlineOptions`). A
+adds the interval's factors; iSAM2 relinearises every 30 updates on uncalibrated rigs (what a state
+leaves on the static cameras was otherwise linearised at its prediction) and never on AirCap ones
+(:class:`OnlineOptions`); a second bootstrap may solve the stream so far in batch once (``resolve_s``). A
 detection is first gated: its keypoints outside the region of interest the predicted body projects
 to (its box widened by ``gate_margin`` of its height) lose their weight, and a detection left with
 fewer than ``gate_min_keypoints`` is dropped and counted. After ``coast_s`` without detections the
