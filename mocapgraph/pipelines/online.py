@@ -43,7 +43,9 @@ are flagged ``bootstrap`` in the results: their starting values saw the whole bo
 **The loop.** Observations are gathered per grid interval ``(t_i, t_{i+1}]``; the first one of a
 later interval closes it: one smoother update creates the states up to ``t_{i+1}`` (each starting
 from the tracker's constant-velocity prediction, held after ``coast_s`` without observations) and
-adds the interval's factors; iSAM2 does not relinearise by default (:class:`OnlineOptions`). A
+adds the interval's factors; iSAM2 relinearises every 30 updates on uncalibrated rigs (what a state
+leaves on the static cameras was otherwise linearised at its prediction) and never on AirCap ones
+(:class:`OnlineOptions`); a second bootstrap may solve the stream so far in batch once (``resolve_s``). A
 detection is first gated: its keypoints outside the region of interest the predicted body projects
 to (its box widened by ``gate_margin`` of its height) lose their weight, and a detection left with
 fewer than ``gate_min_keypoints`` is dropped and counted. After ``coast_s`` without detections the
@@ -87,6 +89,7 @@ from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS
 from mocapgraph.body.rotations import relative_angle
 from mocapgraph.body.skeleton import JOINT_NAMES, NUM_JOINTS
+from mocapgraph.data_tools.evaluation.alignment import umeyama
 from mocapgraph.data_tools.geometry.camera_model import project_points
 from mocapgraph.data_tools.geometry.triangulation import triangulate_points
 from mocapgraph.data_tools.io.capture import Camera, Capture, Detector
@@ -121,6 +124,7 @@ BOOTSTRAP_MOTION_PRIORS = ("vae", "none")
 # table (~10 ms), so a shape creeping at every update is not followed update by update
 _SHAPE_STEP = 1e-3
 _SHAPE_WEAK, _SHAPE_HELD = 0.1, 1e-3  # OnlineFusion._shape_prior
+RIG_RELINEARISATION = Relinearisation(0.01, 30)  # OnlineOptions.relinearisation "rig", uncalibrated rigs
 _SNAP = 1e-6  # a grid fraction this close to 0 or 1 is the grid state itself (as graphs.sync)
 
 
@@ -178,9 +182,16 @@ class OnlineOptions:
     # (docs/online.md, "The shape in the window").
     shape: str = "hold"
     shape_refine_s: float | None = 30.0
-    # No relinearisation: with the pose GMM and the re-acquisition it changed no error measured
-    # (rich, aircap, a person out of view) and was the p95 (docs/online.md)
-    relinearisation: Relinearisation = field(default_factory=lambda: Relinearisation(enabled=False))
+    # iSAM2's relinearisation; "rig": none on AirCap rigs (it changed no error measured there and
+    # was the p95), on uncalibrated rigs every variable whose delta passed 0.01 every 30 updates
+    # (RIG_RELINEARISATION). Without it every reprojection factor stays linearised at its state's
+    # start (the tracker's prediction), and what a state leaves on the static cameras when it is
+    # marginalised is that linearisation: rich 10 s seed 1, the static cameras' smoothed MCPE 12.5
+    # -> 8.9 mm (offline 8.9), all cameras 17.1 -> 13.7 mm (1.26x -> 1.01x offline), for a
+    # relinearisation step (~80 ms CPU, all but the newest states) once a second; relinearising the
+    # cameras alone changed nothing (12.6 mm), as did a second batch solve (resolve_s)
+    # (docs/online.md, "Static cameras and the states' linearisation").
+    relinearisation: Relinearisation | str = "rig"
     # Constant-velocity priors over three consecutive states (None: off), beside the velocity
     # ones of ``graph``: a state's next neighbours then correct it while it is in the window, the
     # smoothed trajectory's gain over the filtered one. Without them each state of a synchronised
@@ -274,6 +285,14 @@ class OnlineOptions:
     # the root's pitch then drifts (RA-MPJPE 38-41 -> 49-52 mm), so empty (the bootstrap's kept)
     # by default (docs/online.md, "Where rich's MPJPE and MCPE excess lived").
     offset_updates_s: tuple[float, ...] = ()
+    # A second bootstrap of an uncalibrated rig (seconds from the stream's start; None: off): the
+    # rig's batch pipeline solved again on every frame so far, once, and the loop carried over to
+    # its shape, keypoint-definition offsets and static cameras (moved rigidly onto the loop's
+    # world), the window restarted from it with its observations replayed (OnlineFusion._resolve).
+    # The 1 s bootstrap's shape and offsets are measured on 30 frames (shrunk towards the prior)
+    # and held for the rest of the stream; its cameras are where the window starts refining.
+    resolve_s: float | None = None
+    resolve_offset_rounds: int = 2
     # The pose GMM and joint-rotation smoothness of 3 rad/s (offline: 6) keep iSAM2's undamped
     # Gauss-Newton out of the directions keypoints barely see (collars, shoulder twist): without
     # either, a shoulder's axis-angle ran past pi and the window diverged (rich 10 s: smoothed
@@ -287,7 +306,10 @@ class OnlineOptions:
 
     def check(self) -> None:
         self.graph.check()
-        self.relinearisation.check()
+        if self.relinearisation != "rig":
+            if not isinstance(self.relinearisation, Relinearisation):
+                raise MocapgraphError(f"relinearisation: a Relinearisation or 'rig', got {self.relinearisation!r}")
+            self.relinearisation.check()
         if self.graph.pose_prior == "vae":
             raise MocapgraphError("graph.pose_prior 'vae': not available online (its latents span the whole sequence); choose gmm or none")
         if self.rig is not None and self.rig not in RIGS:
@@ -313,7 +335,7 @@ class OnlineOptions:
         times = self.offset_updates_s
         if not (isinstance(times, (tuple, list)) and all(map(is_positive_number, times))):
             raise MocapgraphError(f"offset_updates_s: seconds from the stream's start, finite numbers > 0, got {times!r}")
-        for name in ("static_refine_s", "shape_refine_s"):
+        for name in ("static_refine_s", "shape_refine_s", "resolve_s"):
             value = getattr(self, name)
             if value is not None and not is_positive_number(value):
                 raise MocapgraphError(f"{name}: a finite number of seconds > 0 or None, got {value!r}")
@@ -327,7 +349,7 @@ class OnlineOptions:
             value = getattr(self, name)
             if value is not None and not (value == "rig" and name in ("pose_sigma_rad_s2", "unmodelled_sigma_rad")) and not is_positive_number(value):
                 raise MocapgraphError(f"{name}: a finite number > 0 or None (pose_sigma_rad_s2, unmodelled_sigma_rad: or 'rig'), got {value!r}")
-        for name in ("gate_min_keypoints", "gate_reacquire", "join_frames", "bootstrap_offset_rounds"):
+        for name in ("gate_min_keypoints", "gate_reacquire", "join_frames", "bootstrap_offset_rounds", "resolve_offset_rounds"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise MocapgraphError(f"{name}: a whole number >= 1, got {getattr(self, name)!r}")
         if not 0.0 < self.camera_prior_white_fraction < 1.0:
@@ -368,6 +390,8 @@ class OnlineStats:
     relinearised: list[int] = field(default_factory=list)
     batches: int = 0  # smoother updates in which iSAM2 fell back to a batch step (every factor relinearised)
     offset_update_seconds: list[float] = field(default_factory=list)  # each measure of the keypoint offsets (offset_updates_s), inside its update's latency
+    resolve_seconds: float = 0.0  # the second bootstrap's batch solve and replay (resolve_s), wall clock; outside the latencies, as the bootstrap's
+    resolve_cpu_seconds: float = 0.0  # the same, CPU time of the loop's thread
 
     @property
     def dropped(self) -> int:
@@ -381,6 +405,7 @@ class OnlineStats:
             "observations": self.observations, "used": self.used, "late_used": self.late_used, "late_dropped": self.late_dropped,
             "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
             "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3), "bootstrap_refined": self.bootstrap_refined,
+            "resolve_s": round(self.resolve_seconds, 3), "resolve_cpu_s": round(self.resolve_cpu_seconds, 3),
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "latency_cpu_ms": {q: round(float(np.percentile(cpu, p)), 2) if len(cpu) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
             "offset_updates_ms": [round(1e3 * x, 1) for x in self.offset_update_seconds],
@@ -506,6 +531,8 @@ class OnlineFusion:
             if options.hips_sigma_rad_s2 is not None:
                 sigmas[[JOINT_NAMES.index("left_hip") - 1, JOINT_NAMES.index("right_hip") - 1]] = options.hips_sigma_rad_s2
             self._pose_sigma_rad_s2 = sigmas.ravel()
+        relinearisation = options.relinearisation
+        self._relinearisation = (RIG_RELINEARISATION if self.kind == "smartmocap" else Relinearisation(enabled=False)) if relinearisation == "rig" else relinearisation
         unmodelled = options.unmodelled_sigma_rad
         self._graph = replace(options.graph, unmodelled_sigma_rad=(0.2 if self.kind == "aircap" else None) if unmodelled == "rig" else unmodelled)
         self.index = {cam.name: c for c, cam in enumerate(self.rig.cameras)}
@@ -531,6 +558,9 @@ class OnlineFusion:
         # frames so far, and the states and camera frames (pose, swap code) that left the window
         self._offset_times = sorted(options.offset_updates_s) if self.kind == "smartmocap" and options.bootstrap_keypoint_offsets else []
         self._kept: list[StreamFrame] = []
+        # the second bootstrap's time from the stream's start (resolve_s), until it ran
+        self._resolve_at = options.resolve_s if self.kind == "smartmocap" else None
+        self._replaying = False  # the window's observations replayed into a new window (_resolve)
         self._left_states: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._left_frames: dict[int, dict[float, tuple[np.ndarray, int]]] = {c: {} for c in range(len(self.rig.cameras))}
         self._bootstrapped = False
@@ -574,7 +604,7 @@ class OnlineFusion:
                 self._fixed[c] = np.asarray(cam.extrinsics)[0]
 
     def _new_smoother(self) -> FixedLagSmoother:
-        return FixedLagSmoother(self.options.lag_s, self.options.relinearisation, {"r": 6, "q": 3 * (NUM_JOINTS - 1), "c": 6, "o": 6})
+        return FixedLagSmoother(self.options.lag_s, self._relinearisation, {"r": 6, "q": 3 * (NUM_JOINTS - 1), "c": 6, "o": 6})
 
     # -- input ----------------------------------------------------------------------------------
 
@@ -629,17 +659,26 @@ class OnlineFusion:
                 self._bootstrap()
                 return self.state(updated=True)
             return self.state()
-        if self._offset_times:
+        if self._keeping:
             self._kept.append(frame)
+        resolved = (self.stats.resolve_seconds, self.stats.resolve_cpu_seconds)
         updated = self._observe(c, frame)
         out = self.state(updated=updated)
-        seconds, cpu = time.perf_counter() - start, time.thread_time() - cpu_start
+        # the second bootstrap is counted apart, as the first is (OnlineStats.resolve_seconds)
+        seconds = time.perf_counter() - start - (self.stats.resolve_seconds - resolved[0])
+        cpu = time.thread_time() - cpu_start - (self.stats.resolve_cpu_seconds - resolved[1])
         self.stats.busy_seconds += seconds
         self.stats.busy_cpu_seconds += cpu
         if updated:
             self.stats.latencies.append(seconds)
             self.stats.cpu_latencies.append(cpu)
         return out
+
+    @property
+    def _keeping(self) -> bool:
+        """Whether the stream's frames are kept: for a measure of the keypoint offsets or a second
+        bootstrap still to come."""
+        return bool(self._offset_times) or self._resolve_at is not None
 
     def _take_sensors(self, c: int, sensors: dict) -> dict:
         cam = self.rig.cameras[c]
@@ -704,13 +743,12 @@ class OnlineFusion:
         than 90 deg apart, the held one was turned round by a whole-body flip in most views, and
         the loop starts from the refined one (``bootstrap_cameras="check"``)."""
         from mocapgraph.pipelines.aircap import AircapOptions, resample, run_aircap
-        from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
 
         start = time.perf_counter()
-        mini = self._buffered_capture(self._buffer)
-        detectors = tuple(dict.fromkeys(f.detector for f in self._buffer))
         o = self.options
         if self.kind == "aircap":
+            mini = self._buffered_capture(self._buffer)
+            detectors = tuple(dict.fromkeys(f.detector for f in self._buffer))
             # the cameras' priors are the loop's: the fusion's first solve is the offline fusion of
             # the same logs
             fused = self._navigation and o.camera_priors == "fused" and all(c in self._navigation for c, cam in enumerate(self.rig.cameras) if cam.mount is not None)
@@ -726,12 +764,7 @@ class OnlineFusion:
                 if turned > 0.5 * math.pi:
                     result, self.stats.bootstrap_refined = refined, True
         else:
-            options = SmartmocapOptions(
-                motion_prior=o.bootstrap_motion_prior, keypoint_offsets=o.bootstrap_keypoint_offsets, offset_rounds=o.bootstrap_offset_rounds,
-                covariances=False, workers=1, detectors=detectors, drift_sigmas_m=None,  # the result's keypoints are not read
-                graph=replace(SmartmocapOptions().graph, focal="fixed", swaps=o.graph.swaps),
-            )  # fmt: skip
-            result = run_smartmocap(mini, options)
+            result = self._smartmocap_batch(self._buffer, o.bootstrap_offset_rounds)
         self.stats.bootstrap_seconds = time.perf_counter() - start
         span = self._buffer[-1].timestamp - self.t0
         self.shape = np.asarray(result.shape, dtype=float)
@@ -765,7 +798,7 @@ class OnlineFusion:
         # an interval at a time, the first updates saw a state or two and one or two views,
         # and iSAM2's undamped Gauss-Newton steps threw them metres off (measured).
         buffered, self._buffer = self._buffer, []
-        if self._offset_times:
+        if self._keeping:
             self._kept = list(buffered)
         for frame in buffered:
             i, a = self._grid(frame.timestamp)
@@ -773,6 +806,19 @@ class OnlineFusion:
             self._add_observation(self.index[frame.camera], frame, i, a)
         self._flush()
         self.stats.batches = 0  # the bootstrap's update is one by construction
+
+    def _smartmocap_batch(self, frames: list[StreamFrame], offset_rounds: int) -> Result:
+        """An uncalibrated rig's batch solve of ``frames`` (the bootstrap's, the second bootstrap's):
+        ``run_smartmocap`` with the loop's motion prior and keypoint offsets, its focal held."""
+        from mocapgraph.pipelines.smartmocap import SmartmocapOptions, run_smartmocap
+
+        o = self.options
+        options = SmartmocapOptions(
+            motion_prior=o.bootstrap_motion_prior, keypoint_offsets=o.bootstrap_keypoint_offsets, offset_rounds=offset_rounds,
+            covariances=False, workers=1, detectors=tuple(dict.fromkeys(f.detector for f in frames)), drift_sigmas_m=None,  # the result's keypoints are not read
+            graph=replace(SmartmocapOptions().graph, focal="fixed", swaps=o.graph.swaps),
+        )  # fmt: skip
+        return run_smartmocap(self._buffered_capture(frames), options)
 
     # -- the loop -------------------------------------------------------------------------------
 
@@ -1117,6 +1163,8 @@ class OnlineFusion:
         self._pending.add(factor)
         if labelling is not None and labelling.allowed[0, SWAP_KINDS.index("body")] and voted:
             self._body_votes.append((c, labelling, factor, view.fused))
+        if self._replaying:
+            return  # counted when it first came
         self.stats.used += 1
         self._last_observed = max(self._last_observed, i + (1 if a else 0))
         if self.record:
@@ -1149,7 +1197,7 @@ class OnlineFusion:
                 from mocapgraph.pipelines.smartmocap import SmartmocapOptions, gauge_factor
 
                 self._pending.add(gauge_factor(self._gauge, SmartmocapOptions().gauge_sigmas))
-            if k > 0:
+            if k > 0 and self._in_window(root_key(k - 1)):  # not the first state of a new window (_resolve)
                 self._pending.add(root_smoothness_factor(root_key(k - 1), root_key(k), self.period, (o.graph.root_sigma_rad_s, o.graph.root_sigma_m_s)))
                 self._pending.add(pose_velocity_factor(pose_key(k - 1), pose_key(k), self.period, o.graph.pose_sigma_rad_s))
             if k > 1 and self._in_window(root_key(k - 2)):
@@ -1184,6 +1232,8 @@ class OnlineFusion:
                 return next((v for v in (self.smoother.estimate, report.left) if v.exists(key)), None)
 
             for k, root, pose in created:
+                if k in self.filtered:
+                    continue  # replayed into a new window (_resolve): the record is as first estimated
                 # the bootstrap's states are all created by the replay's update: as its newest
                 # state is, each is recorded as that update left it (not the batch solution, in
                 # the frame the update then moved: the filtered joints' alignment to the truth
@@ -1204,11 +1254,69 @@ class OnlineFusion:
         if self._offset_times and self._left_states and end * self.period >= self._offset_times[0] - _SNAP:
             self._offset_times.pop(0)
             self._measure_offsets()
+        if self._resolve_at is not None and end * self.period >= self._resolve_at - _SNAP:
+            self._resolve()
         # the camera frames' current estimates, for the gate and the next frames' starts
         for frames in self._frames.values():
             for f in frames.values():
                 if f.key is not None and self.smoother.estimate.exists(f.key):
                     f.pose = self.smoother.estimate.atPose3(f.key).matrix()
+
+    def _resolve(self) -> None:
+        """The second bootstrap (``resolve_s``): the rig's batch pipeline on every frame so far;
+        the loop takes its shape and keypoint-definition offsets, its static cameras (as the
+        window's priors' centres) and its states and moving cameras' frames in the window (as their
+        starts), all moved by the rigid map of the batch's world onto the loop's (fitted on the
+        static cameras' centres and optical axes: the records so far stay in the loop's world). The
+        window is then started again from them with its observations replayed in one update, as
+        the bootstrap's (the factors already in it were made with the old shape and offsets).
+        Nothing is replayed that left the window: the batch holds it."""
+        from mocapgraph.pipelines.aircap import resample
+
+        start, cpu_start = time.perf_counter(), time.thread_time()
+        self._resolve_at = None
+        newest = self.t0 + (self.newest + _SNAP) * self.period
+        frames = [f for f in self._kept if f.timestamp <= newest]
+        self._kept = self._kept if self._keeping else []
+        result = self._smartmocap_batch(frames, self.options.resolve_offset_rounds)
+        placed = {c: key for c, key in self._static_keys.items() if self.rig.cameras[c].name in result.cameras and self.smoother.estimate.exists(key)}
+        if len(placed) < 2:
+            log.warning("online: the second bootstrap placed %d of the window's static cameras; two are needed to carry it over: not taken", len(placed))
+            return
+        loop = np.stack([self.smoother.estimate.atPose3(key).matrix() for key in placed.values()])
+        batch = np.stack([result.cameras[self.rig.cameras[c].name].world_T_camera[0] for c in placed])
+
+        def axes(T: np.ndarray) -> np.ndarray:
+            return np.concatenate([T[:, :3, 3], T[:, :3, 3] + T[:, :3, 2]])  # centres, and a metre along each optical axis
+
+        onto = umeyama(axes(batch), axes(loop), with_scale=False).apply_pose
+        self.shape = np.asarray(result.shape, dtype=float)
+        self._keypoint_offsets = {fmt: offsets_from_table(fmt, table) for fmt, table in result.parameters.get("keypoint_offsets_m", {}).items()}
+        self._caches.clear()
+        first = min(int(gtsam.Symbol(k).index()) for k in self.smoother.timestamps if chr(gtsam.Symbol(k).chr()) == "r")
+        window = np.arange(first, self.newest + 1)
+        est = resample(Estimate(onto(np.asarray(result.root)), result.pose, self.shape, []), np.asarray(result.timestamps), self.t0 + self.period * window)
+        self._seed = {int(k): (est.roots[j], est.poses[j]) for j, k in enumerate(window)}
+        for c in self._static_keys:
+            pose = onto(result.cameras[self.rig.cameras[c].name].world_T_camera[0]) if c in placed else self.smoother.estimate.atPose3(self._static_keys[c]).matrix()
+            self._seed_cameras[c] = {newest: pose}
+        for name, track in result.cameras.items():
+            c = self.index[name]
+            if self.rig.cameras[c].moving:
+                self._seed_cameras[c] = {float(t): T for t, T in zip(track.timestamps, onto(track.world_T_camera))}
+        # a new window, the observations of its states replayed into it
+        replay = [f for f in frames if self._grid(f.timestamp)[0] >= first]
+        self.newest, self.open = first - 1, self.newest - 1
+        self.smoother = self._new_smoother()
+        self._frames = {c: {} for c in self._frames}
+        self._replaying = True
+        for frame in replay:
+            self._add_observation(self.index[frame.camera], frame, *self._grid(frame.timestamp))
+        self._flush()
+        self._replaying = False
+        self.stats.resolve_seconds = time.perf_counter() - start
+        self.stats.resolve_cpu_seconds = time.thread_time() - cpu_start
+        log.info("online: second bootstrap on %.2f s of stream (%d states replayed) in %.1f s", newest - self.t0, len(window), self.stats.resolve_seconds)
 
     def _measure_offsets(self) -> None:
         """The detector formats' keypoint-definition offsets measured again
@@ -1237,7 +1345,8 @@ class OnlineFusion:
             self._keypoint_offsets[fmt] = fit.offsets
             self._caches.pop(fmt, None)
         if not self._offset_times:
-            self._kept, self._left_states = [], {}
+            self._kept = self._kept if self._keeping else []
+            self._left_states = {}
             self._left_frames = {c: {} for c in self._left_frames}
         self.stats.offset_update_seconds.append(time.perf_counter() - start)
         log.info("online: keypoint offsets measured again on %d states (%.2f s of stream) in %.2f s", sum(s is not None for s in states), (last + 1) * self.period, self.stats.offset_update_seconds[-1])
