@@ -49,7 +49,9 @@ leaves on the static cameras was otherwise linearised at its prediction) and nev
 detection is first gated: its keypoints outside the region of interest the predicted body projects
 to (its box widened by ``gate_margin`` of its height) lose their weight, and a detection left with
 fewer than ``gate_min_keypoints`` is dropped and counted. After ``coast_s`` without detections the
-track is lost: the gate stays open and the next state starts where its views triangulate the body.
+track is lost: the gate stays open and the next state starts where its views triangulate the body;
+so it does after ``gate_reacquire`` detections gated out in a row (the prediction, not the
+detections, went wrong).
 A moving uncalibrated camera whose frames all left the window is resected on the body when it
 returns. An observation later than the open interval but whose states are still in the window is used; an
 older one is counted and dropped (as is a frame more than the lag older than its camera's newest).
@@ -1126,7 +1128,9 @@ class OnlineFusion:
         # lost track (the prediction, not the detections, is then what went wrong).
         k = int(round(i + a))
         lost = self._last_observed >= 0 and (k - self._last_observed) * self.period > self.options.coast_s
-        if (lost or k in self._reacquiring) and k > self.newest:
+        # a run of gate_reacquire rejections says the same of the prediction as a lost track
+        stale = self._rejected >= self.options.gate_reacquire
+        if (lost or stale or k in self._reacquiring) and k > self.newest:
             # the track was lost: the prediction is stale, so no gate, and the new state will
             # start where the views triangulate the body (_reacquire)
             cam_T_world = np.linalg.inv(view.pose)
