@@ -389,7 +389,9 @@ def fit_clip_offsets(clip: str | Path | None = None, person: str | int = "larges
     with tempfile.TemporaryDirectory(prefix="mocapgraph-fit-offsets-") as tmp:
         path, _ = clip_capture(directory, Path(tmp) / "capture", person, "calibrated")
         capture = load_capture(path)
-        options = SmartmocapOptions(covariances=False, offset_prior="zero", offset_rounds=rounds)
+        # every component measured, the hips' up and forward too: with three cameras held at the
+        # lab's calibration the world is theirs, and the committed tables were made so
+        options = SmartmocapOptions(covariances=False, offset_prior="zero", offset_rounds=rounds, hold_root_offsets=False)
         result = run_smartmocap(capture, options, held_cameras={name: T for name, T in lab.items() if any(c.name == name for c in capture.cameras)})
     fmt = result.keypoint_format
     fitted = result.parameters["keypoint_offsets_m"].get(fmt, {})
