@@ -17,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
 
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.keypoint_offsets import MIRROR, carrier_joints, drifted, with_offsets
@@ -173,13 +175,20 @@ def estimate_drift(
     table, samples = _samples(body, model, estimate, fmt, offsets, DRIFT_THRESHOLD_PX)
     N, K = samples.shape[:2]
     seen = np.isfinite(samples).all(axis=-1)  # (N, K)
-    step = np.diff(np.eye(N), axis=0)
-    smoothing = step.T @ step / sigma_step**2 + np.eye(N) / sigma_prior**2
+    smoothing = _drift_smoothing(N, sigma_step, sigma_prior)
     out = np.zeros((N, K, 3))
     for k in np.flatnonzero(table.mapped & seen.any(axis=0)):
-        A = smoothing + np.diag(seen[:, k] / sigma_obs**2)
-        out[:, k] = np.linalg.solve(A, np.where(seen[:, k, None], samples[:, k], 0.0) / sigma_obs**2)
+        A = (smoothing + sparse.diags(seen[:, k] / sigma_obs**2)).tocsc()
+        out[:, k] = spsolve(A, np.where(seen[:, k, None], samples[:, k], 0.0) / sigma_obs**2)
     return out
+
+
+def _drift_smoothing(N: int, sigma_step: float, sigma_prior: float) -> sparse.csc_matrix:
+    """``(N, N)`` sparse: the information of the drift's smoothing prior over ``N`` states, its steps
+    (σ ``sigma_step``) and its size (σ ``sigma_prior``); tridiagonal, so a capture's drift costs
+    in proportion to its length."""
+    step = sparse.diags([-np.ones(N - 1), np.ones(N - 1)], [0, 1], shape=(N - 1, N))
+    return (step.T @ step / sigma_step**2 + sparse.identity(N) / sigma_prior**2).tocsc()
 
 
 DRIFT_GM_SIGMA_PX = 10.0
@@ -208,8 +217,7 @@ def refine_drift_in_images(
     table, fk = _posed(body, estimate, fmt, offsets)
     N, K = fk.keypoints.shape[:2]
     carrier = carrier_joints(table)
-    step = np.diff(np.eye(N), axis=0)
-    prior = np.kron(step.T @ step / sigma_step**2 + np.eye(N) / sigma_prior**2, np.eye(3))  # (3N, 3N)
+    prior = sparse.kron(_drift_smoothing(N, sigma_step, sigma_prior), sparse.identity(3), format="csc")  # (3N, 3N), per axis
     rows = [(i, o) for i, obs in enumerate(model.states) for o in obs if o.fmt == fmt and o.fraction == 0.0]
     out = np.array(drift, dtype=float, copy=True)
     if not rows:
@@ -252,10 +260,8 @@ def refine_drift_in_images(
             blocks, gradients = np.zeros((N, 3, 3)), prior @ d.reshape(-1)
             np.add.at(blocks, idx, np.einsum("mia,mib,m->mab", J, J, information))
             np.add.at(gradients.reshape(N, 3), idx, np.einsum("mia,mi,m->ma", J, residual, information))
-            H = prior.copy()
-            for n in np.unique(idx):
-                H[3 * n : 3 * n + 3, 3 * n : 3 * n + 3] += blocks[n]
-            change = np.linalg.solve(H, -gradients).reshape(N, 3)
+            H = prior + sparse.bsr_matrix((blocks, np.arange(N), np.arange(N + 1)), shape=(3 * N, 3 * N))  # the views' blocks on the diagonal
+            change = spsolve(H.tocsc(), -gradients).reshape(N, 3)
             d += change
             if np.abs(change).max() < 1e-5:
                 break
