@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.mocapgraph-installed
 BUILD_INPUTS := $(wildcard native/*.cpp native/*.h) CMakeLists.txt pyproject.toml
 
-.PHONY: install demo test test-all test-video bench clean
+.PHONY: install demo test test-all test-video bench lint clean
 
 install: $(STAMP)
 
@@ -32,6 +32,10 @@ $(VIDEO_STAMP): $(STAMP)
 
 test-video: $(VIDEO_STAMP)
 	$(VIDEO_VENV)/bin/python -m pytest -q tests/test_detect_video.py tests/test_importers.py
+
+# Unused names and import order: the checks every change passes before it is committed.
+lint: install
+	$(VENV)/bin/ruff check --select F,I --line-length 200 mocapgraph tests
 
 demo: install
 	$(VENV)/bin/mocapgraph demo
