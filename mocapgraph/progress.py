@@ -12,6 +12,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import sys
+import time
+from collections.abc import Callable
 
 from tqdm.auto import tqdm
 
@@ -22,6 +24,44 @@ def progress_bar(iterable=None, *, total: int | None = None, desc: str = "", uni
     """A tqdm bar on stderr: hidden below INFO (``-q``) and when stderr is not a terminal."""
     quiet = not logging.getLogger(ROOT_LOGGER).isEnabledFor(logging.INFO)
     return tqdm(iterable, total=total, desc=desc, unit=unit, disable=True if quiet else None, leave=False, dynamic_ncols=True)
+
+
+class LiveLine:
+    """One status line that a long loop refreshes (``run online``'s updates/s and latency).
+
+    On a terminal the line is rewritten in place at most every ``every_s`` seconds; otherwise
+    (a log file, a pipe, captured output) it goes out as a whole log line at most every
+    ``log_every_s`` seconds, so nothing downstream sees carriage returns; below INFO (``-q``)
+    nothing is shown. :meth:`due` says whether :meth:`show` would print now, so the caller
+    builds the text only then.
+    """
+
+    def __init__(self, every_s: float = 0.5, log_every_s: float = 10.0, clock: Callable[[], float] = time.perf_counter):
+        self._clock = clock
+        self._every_s = every_s if sys.stderr.isatty() else log_every_s
+        self._shown_at: float | None = None
+        self._open = False
+
+    def due(self) -> bool:
+        if not logging.getLogger(ROOT_LOGGER).isEnabledFor(logging.INFO):
+            return False
+        return self._shown_at is None or self._clock() - self._shown_at >= self._every_s
+
+    def show(self, text: str) -> None:
+        if not self.due():
+            return
+        self._shown_at = self._clock()
+        if sys.stderr.isatty():
+            print(f"\r{text}", end="", file=sys.stderr, flush=True)
+            self._open = True
+        else:
+            logging.getLogger(ROOT_LOGGER).info(text)
+
+    def close(self) -> None:
+        """Ends a line left open on the terminal."""
+        if self._open:
+            print(file=sys.stderr, flush=True)
+            self._open = False
 
 
 class _StderrHandler(logging.StreamHandler):

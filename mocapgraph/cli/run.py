@@ -202,32 +202,27 @@ def _number_or_word(text: str):
 
 
 def cmd_run_online(args) -> None:
-    import sys
-    import time
-
     from mocapgraph.data_tools.io.capture import load_capture
     from mocapgraph.data_tools.io.files import reserve_output
     from mocapgraph.data_tools.io.result import MANIFEST, write_result
     from mocapgraph.pipelines.online import run_online, summary
+    from mocapgraph.progress import LiveLine
 
     options = args.options_from(args)
     options.check()  # before OUT is reserved: a bad flag is the options' one clear error
     reserve_output(args.out, args.overwrite, MANIFEST, inputs=[args.capture])
     capture = load_capture(args.capture)
-    shown = [0.0]
+    status = LiveLine()
 
     def live(fusion, state) -> None:
-        now = time.perf_counter()
-        if now - shown[0] < 0.5 or not fusion.stats.latencies:
+        if not status.due() or not fusion.stats.latencies:
             return
-        shown[0] = now
         s = fusion.stats.summary()
         lat = s["latency_ms"]
-        line = f"t {state.time:7.2f} s  {s['updates_per_s']:6.1f} updates/s  latency p50 {lat['p50']:5.1f} ms p95 {lat['p95']:5.1f} ms  dropped {fusion.stats.dropped}"
-        print(f"\r{line}", end="", file=sys.stderr, flush=True)
+        status.show(f"t {state.time:7.2f} s  {s['updates_per_s']:6.1f} updates/s  latency p50 {lat['p50']:5.1f} ms p95 {lat['p95']:5.1f} ms  dropped {fusion.stats.dropped}")
 
     run = run_online(capture, options, capture_label=str(args.capture), realtime=args.realtime, on_update=live)
-    print(file=sys.stderr)
+    status.close()
     write_result(run.smoothed, args.out, overwrite=args.overwrite)
     write_result(run.filtered, args.out / "filtered", overwrite=True)
     print(summary(run))
