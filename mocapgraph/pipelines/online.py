@@ -51,7 +51,8 @@ to (its box widened by ``gate_margin`` of its height) lose their weight, and a d
 fewer than ``gate_min_keypoints`` is dropped and counted. After ``coast_s`` without detections the
 track is lost: the gate stays open and the next state starts where its views triangulate the body;
 so it does after ``gate_reacquire`` detections gated out in a row (the prediction, not the
-detections, went wrong).
+detections, went wrong), or as many of one camera's while the others' pass (the prediction slid
+along the direction only that camera sees across).
 A moving uncalibrated camera whose frames all left the window is resected on the body when it
 returns. An observation later than the open interval but whose states are still in the window is used; an
 older one is counted and dropped (as is a frame more than the lag older than its camera's newest).
@@ -368,6 +369,9 @@ class OnlineStats:
     late_dropped: int = 0
     gated: int = 0
     gated_keypoints: int = 0
+    # states re-placed where their views triangulate the body after one camera's detections were
+    # gated out gate_reacquire times in a row while the others' passed (OnlineFusion._add_observation)
+    camera_reacquired: int = 0
     empty: int = 0
     unplaced: int = 0
     no_prior: int = 0  # UAV camera frames without an onboard estimate near their time, not used
@@ -405,7 +409,7 @@ class OnlineStats:
         cpu = np.asarray(self.cpu_latencies) * 1e3
         return {
             "observations": self.observations, "used": self.used, "late_used": self.late_used, "late_dropped": self.late_dropped,
-            "gated": self.gated, "gated_keypoints": self.gated_keypoints, "empty": self.empty, "unplaced": self.unplaced,
+            "gated": self.gated, "gated_keypoints": self.gated_keypoints, "camera_reacquired": self.camera_reacquired, "empty": self.empty, "unplaced": self.unplaced,
             "no_prior": self.no_prior, "coasting": self.coasting, "camera_priors": self.camera_priors, "solver_resets": self.solver_resets, "relabelled": self.relabelled, "body_swaps_refused": self.body_swaps_refused, "updates": len(lat), "bootstrap_s": round(self.bootstrap_seconds, 3), "bootstrap_refined": self.bootstrap_refined,
             "resolve_s": round(self.resolve_seconds, 3), "resolve_cpu_s": round(self.resolve_cpu_seconds, 3),
             "latency_ms": {q: round(float(np.percentile(lat, p)), 2) if len(lat) else None for q, p in (("p50", 50), ("p95", 95), ("max", 100))},
@@ -583,8 +587,12 @@ class OnlineFusion:
         self.newest = -1  # the newest state created
         self._last_observed = -1
         self._rejected = 0  # detections gated out in a row
+        self._camera_rejected: dict[int, int] = {}  # by camera, its detections gated out in a row
         # states first seen again after the track was lost: their views, to re-place the body
         self._reacquiring: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]] = {}
+        # the views of the states still to be created, gated in: what re-places the body when one
+        # camera's run of rejections says the prediction slid where only that camera sees
+        self._new_views: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]] = {}
         # cameras joining an uncalibrated rig after the bootstrap: body points and keypoints so far
         self._joining: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
         # the last states that left the window (the tracker's velocity reads them after a restart)
@@ -916,6 +924,7 @@ class OnlineFusion:
         """State ``k``'s start after the track was lost: the prediction moved so that its
         keypoints sit on those the views of ``k`` triangulate (two views or more), else as predicted."""
         views = self._reacquiring.pop(k, [])
+        self._new_views.pop(k, None)
         fmt = views[0][3] if views else None
         views = [v for v in views if v[3] == fmt]
         if len(views) < 2:
@@ -1130,19 +1139,31 @@ class OnlineFusion:
         lost = self._last_observed >= 0 and (k - self._last_observed) * self.period > self.options.coast_s
         # a run of gate_reacquire rejections says the same of the prediction as a lost track
         stale = self._rejected >= self.options.gate_reacquire
+        # So does such a run of one camera's while the others' detections pass: the prediction
+        # slid along the direction only that camera sees across (aircap 10 s seed 1: uav2 and uav3
+        # 12-32 deg apart, the body slid 2.7 m along their rays at 6.1-7.1 s while uav1, the only
+        # view across, was gated out 53 times, its runs reset by the others' detections). The
+        # state then starts where all its views triangulate the body, as after a lost track.
+        view_of = (cam.K @ np.linalg.inv(view.pose)[:3], pixels, weights, fmt)
+        if self._camera_rejected.get(c, 0) >= self.options.gate_reacquire and k > self.newest and k not in self._reacquiring:
+            self._reacquiring[k] = list(self._new_views.get(k, []))
+            self.stats.camera_reacquired += 1
         if (lost or stale or k in self._reacquiring) and k > self.newest:
             # the track was lost: the prediction is stale, so no gate, and the new state will
             # start where the views triangulate the body (_reacquire)
-            cam_T_world = np.linalg.inv(view.pose)
-            self._reacquiring.setdefault(k, []).append((cam.K @ cam_T_world[:3], pixels, weights, fmt))
+            self._reacquiring.setdefault(k, []).append(view_of)
         elif i not in self._seed and self._rejected < self.options.gate_reacquire:
             gated = self._gate(c, view.pose, frame, pixels, weights, i, a)
             if gated is None:
                 self.stats.gated += 1
                 self._rejected += 1
+                self._camera_rejected[c] = self._camera_rejected.get(c, 0) + 1
                 return
             weights = gated
+            if k > self.newest:
+                self._new_views.setdefault(k, []).append(view_of)
         self._rejected = 0
+        self._camera_rejected[c] = 0
         o = self.options.graph
         labelling = None
         if o.swaps:
