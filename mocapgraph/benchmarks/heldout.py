@@ -51,6 +51,9 @@ HELDOUT_SEED = 0
 SPLITS = ("frames", "runs")
 """How :func:`run_heldout` is run by ``bench real``: single camera-frames (``run_frames=1``), and
 each camera's share as one run (:func:`split_run_frames`)."""
+HELDOUT_MIN_CONFIDENCE = 0.3
+"""Detections below this confidence count in neither the held-out nor the in-sample median of
+:func:`compare_heldout` (the pipelines fit those of 0.2 and more)."""
 BOOTSTRAP_SAMPLES = 2000
 """Resamples of the hidden views for the interval of the difference of the medians."""
 
@@ -182,7 +185,9 @@ def capture_detections(result: Result, capture: Capture) -> dict[str, np.ndarray
     return out
 
 
-def view_errors(result: Result, capture: Capture, detections: Mapping[str, np.ndarray], labels: str = "result", body_points: bool = False) -> dict[str, dict]:
+def view_errors(
+    result: Result, capture: Capture, detections: Mapping[str, np.ndarray], labels: str = "result", body_points: bool = False, min_confidence: float = MIN_CONFIDENCE
+) -> dict[str, dict]:
     """Per camera of the result, the distance (pixels) of each detection from its predicted point.
 
     Args:
@@ -195,11 +200,11 @@ def view_errors(result: Result, capture: Capture, detections: Mapping[str, np.nd
             median error (for views the result never saw: a prediction does not say which label
             a detector will give); ``"detected"``: as detected.
         body_points: count only the points a body has (:func:`measured_points`).
+        min_confidence: detections below this confidence are not counted.
 
     Returns:
         camera → ``{"frames": (n,) the views' frames, "errors": (n, K) pixels, NaN where the
-        detection is missing, below :data:`~mocapgraph.graphs.point_bundle.MIN_CONFIDENCE` or of a
-        point not counted; inf where a counted detection has no prediction}``, for the views with a
+        detection is missing, below ``min_confidence`` or of a point not counted; inf where a counted detection has no prediction}``, for the views with a
         counted detection.
     """
     if labels not in ("result", "best", "detected"):
@@ -213,7 +218,7 @@ def view_errors(result: Result, capture: Capture, detections: Mapping[str, np.nd
             continue
         frames, pixels, codes = projected(result, capture, name)
         observed = np.asarray(detections[name], dtype=float)[frames]
-        seen = (np.nan_to_num(observed[..., 2]) >= MIN_CONFIDENCE) & counted  # (n, K), under any labels
+        seen = (np.nan_to_num(observed[..., 2]) >= min_confidence) & counted  # (n, K), under any labels
         if labels == "result":
             observed = np.take_along_axis(observed, perms[codes][..., None], axis=1)
             candidates = [observed]
@@ -221,7 +226,7 @@ def view_errors(result: Result, capture: Capture, detections: Mapping[str, np.nd
             candidates = [observed] if labels == "detected" else [observed[:, p] for p in perms]
         errors = []
         for obs in candidates:
-            ok = (np.nan_to_num(obs[..., 2]) >= MIN_CONFIDENCE) & counted
+            ok = (np.nan_to_num(obs[..., 2]) >= min_confidence) & counted
             e = np.linalg.norm(pixels - obs[..., :2], axis=-1)
             errors.append(np.where(ok, np.where(np.isfinite(e), e, np.inf), np.nan))
         errors = np.stack(errors)  # (L, n, K)
@@ -240,7 +245,13 @@ def _median(values: np.ndarray) -> float | None:
 
 
 def compare_heldout(
-    results: Mapping[str, Result], capture: Capture, heldout: Mapping[str, np.ndarray], *, seed: int = HELDOUT_SEED, samples: int = BOOTSTRAP_SAMPLES
+    results: Mapping[str, Result],
+    capture: Capture,
+    heldout: Mapping[str, np.ndarray],
+    *,
+    seed: int = HELDOUT_SEED,
+    samples: int = BOOTSTRAP_SAMPLES,
+    min_confidence: float = HELDOUT_MIN_CONFIDENCE,
 ) -> dict:
     """Every method's reprojection on the views it was given and on the hidden ones.
 
@@ -250,15 +261,16 @@ def compare_heldout(
         heldout: camera → ``(F_c, K, 3)`` the hidden detections (:func:`heldout_detections`), NaN
             in the frames the methods saw.
         seed, samples: the paired bootstrap over the hidden views (first two methods).
+        min_confidence: detections below it are counted in neither median.
 
     The points counted are those a body has (:func:`measured_points` with ``body_points``), at
-    confidence ≥ :data:`~mocapgraph.graphs.point_bundle.MIN_CONFIDENCE`; a hidden view is taken
+    confidence ≥ ``min_confidence``; a hidden view is taken
     under the labelling each method predicts best (:func:`view_errors`, ``"best"``), and as
     detected too. The methods are compared on the common set: the hidden views every method has
     a pose for, and in each the points every method predicts.
 
     Returns:
-        ``{"views": hidden views with a counted detection, "detections": their counted
+        ``{"min_confidence", "views": hidden views with a counted detection, "detections": their counted
         detections, "common": those in the common set, method: {"in_sample_px" (every view the
         method saw, labels as it relabelled them), "heldout_px" (the common set),
         "heldout_px_own" (all it predicts), "heldout_px_as_detected" (the common set, labels as
@@ -267,8 +279,8 @@ def compare_heldout(
         percentiles over hidden views resampled with replacement}``.
     """
     names = list(results)
-    best = {m: view_errors(results[m], capture, heldout, "best", body_points=True) for m in names}
-    detected = {m: view_errors(results[m], capture, heldout, "detected", body_points=True) for m in names}
+    best = {m: view_errors(results[m], capture, heldout, "best", True, min_confidence) for m in names}
+    detected = {m: view_errors(results[m], capture, heldout, "detected", True, min_confidence) for m in names}
     cameras = [c for c in heldout if all(c in best[m] for m in names)]
     frames = {c: sorted(set.intersection(*(set(best[m][c]["frames"].tolist()) for m in names))) for c in cameras}
 
@@ -282,10 +294,10 @@ def compare_heldout(
     camera_of = np.concatenate([[c] * len(frames[c]) for c in cameras]) if cameras else np.zeros(0, dtype=str)
     counted = ~np.isnan(stack[names[0]])
     common = np.all([np.isfinite(stack[m]) for m in names], axis=0)
-    out: dict = {"views": int(len(camera_of)), "detections": int(counted.sum()), "common": int(common.sum())}
+    out: dict = {"min_confidence": min_confidence, "views": int(len(camera_of)), "detections": int(counted.sum()), "common": int(common.sum())}
     for m in names:
         e, d = stack[m], stack_detected[m]
-        inside = view_errors(results[m], capture, capture_detections(results[m], capture), "result", body_points=True)
+        inside = view_errors(results[m], capture, capture_detections(results[m], capture), "result", True, min_confidence)
         inside = np.concatenate([v["errors"][np.isfinite(v["errors"])] for v in inside.values()])
         out[m] = {
             "in_sample_px": _median(inside),

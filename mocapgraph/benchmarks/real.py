@@ -211,7 +211,7 @@ def reprojection_px(result: Result, capture: Capture, body_points: bool = False)
     distortion (:func:`~mocapgraph.benchmarks.heldout.view_errors`): ``{"all": px, "camera":
     {name: px}}``. Of a result with a body, and with ``body_points`` of any result, only the
     points the body model has a counterpart for (:func:`~mocapgraph.benchmarks.heldout.measured_points`)."""
-    views = view_errors(result, capture, capture_detections(result, capture), "result", body_points)
+    views = view_errors(result, capture, capture_detections(result, capture), "result", body_points, MIN_CONFIDENCE)
     every, per_camera = [], {}
     for name in result.cameras:
         errors = views[name]["errors"]
@@ -234,11 +234,12 @@ def lab_points(capture: Capture, labelled_by: Result, lab: dict[str, CameraCalib
     detections = capture_detections(labelled_by, capture)
     times = cams[0].timestamps
     perms = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
-    x, w = [], []
+    x, w, labelled = [], [], {}
     for cam in cams:
         frames, _, codes = projected(labelled_by, capture, cam.name)
         labels = np.zeros(cam.num_frames, dtype=int)
         labels[frames] = codes
+        labelled[cam.name] = labels.astype(np.int8)
         observed = np.take_along_axis(detections[cam.name], perms[labels][..., None], axis=1)
         seen = np.nan_to_num(observed[..., 2]) >= MIN_CONFIDENCE
         x.append(np.where(seen[..., None], undistort_pixels(observed[..., :2], lab[cam.name].K, lab[cam.name].distortion), np.nan))
@@ -249,7 +250,7 @@ def lab_points(capture: Capture, labelled_by: Result, lab: dict[str, CameraCalib
     return Result(
         pipeline="lab_points", capture=labelled_by.capture, world_frame="lab", timestamps=times, joints=np.full((T, 22, 3), np.nan),
         keypoints=points.reshape(T, K, 3), keypoint_format=labelled_by.keypoint_format,
-        cameras={c.name: CameraTrack(c.timestamps, np.repeat(lab[c.name].world_T_camera[None], c.num_frames, axis=0)) for c in cams},
+        cameras={c.name: CameraTrack(c.timestamps, np.repeat(lab[c.name].world_T_camera[None], c.num_frames, axis=0), labelled[c.name]) for c in cams},
     )  # fmt: skip
 
 
@@ -522,7 +523,7 @@ def _heldout_lines(split: str, heldout: dict, goal: dict | None) -> list[str]:
     lines = [
         f"  held out ({split}): {100 * heldout['share']:g} % of the camera-frames hidden from both pipelines, {runs} "
         f"(seed {heldout['seed']}: {hidden}), lab intrinsics;",
-        f"    {heldout.get('views', 0)} hidden views, {heldout.get('detections', 0)} detections of the body's points (confidence >= {MIN_CONFIDENCE:g}), "
+        f"    {heldout.get('views', 0)} hidden views, {heldout.get('detections', 0)} detections of the body's points (confidence >= {heldout.get('min_confidence', 0):g}), "
         f"{heldout.get('common', 0)} predicted by both" + ("" if heldout.get("same_tracks_as_full_run", True) else "; NOT the full run's tracks"),
         "  " + " " * 31 + "".join(f"{p:>12}" for p in PIPELINES),
     ]
