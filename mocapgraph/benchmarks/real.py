@@ -524,7 +524,7 @@ def _heldout_lines(split: str, heldout: dict, goal: dict | None) -> list[str]:
         f"  held out ({split}): {100 * heldout['share']:g} % of the camera-frames hidden from both pipelines, {runs} "
         f"(seed {heldout['seed']}: {hidden}), lab intrinsics;",
         f"    {heldout.get('views', 0)} hidden views, {heldout.get('detections', 0)} detections of the body's points (confidence >= {heldout.get('min_confidence', 0):g}), "
-        f"{heldout.get('common', 0)} predicted by both" + ("" if heldout.get("same_tracks_as_full_run", True) else "; NOT the full run's tracks"),
+        f"{heldout.get('common', 0)} predicted by every pipeline that ran" + ("" if heldout.get("same_tracks_as_full_run", True) else "; NOT the full run's tracks"),
         "  " + " " * 31 + "".join(f"{p:>12}" for p in PIPELINES),
     ]
     for key, title in _HELDOUT_ROWS:
