@@ -23,11 +23,17 @@ poses are then compared with the lab's:
 - frames relabelled (left/right swaps found) per camera, focal lengths estimated, run time;
 - whether the person fitted is the same person in every camera (:func:`same_person_check`);
 - how far SmartMocap's body moved (``joint_motion_cm``, :func:`~mocapgraph.pipelines.results.joint_motion_m`):
-  a nearly still person places the cameras poorly, and its note says so.
+  a nearly still person places the cameras poorly, and its note says so;
+- held-out reprojection (``heldout``, :mod:`mocapgraph.benchmarks.heldout`): both pipelines run
+  again with lab intrinsics and a share of the camera-frames hidden from every step, once as
+  single frames and once as one run per camera; each one's 3D predicts the hidden detections
+  through its camera, next to its in-sample median on the views it kept. In-sample reprojection
+  rewards a model's freedom; held-out measures what it predicts.
 
 The ``goals`` say where SmartMocap should be: at or below the baseline on every camera error,
 the reprojection, the ground tilt and the scale (calibrated intrinsics), its cameras with guessed
-intrinsics within 2× of its calibrated run, and the same person in every camera. Swaps found are
+intrinsics within 2× of its calibrated run, the same person in every camera, and at or below the
+baseline on the hidden detections (both splits). Swaps found are
 reported without a goal: the clip has no truth for them.
 """
 
@@ -41,18 +47,17 @@ from pathlib import Path
 import numpy as np
 
 import mocapgraph
-from mocapgraph.body import load_body_model
+from mocapgraph.benchmarks.heldout import HELDOUT_SEED, HELDOUT_SHARE, SPLITS, capture_detections, projected, run_heldout, split_run_frames, view_errors
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
 from mocapgraph.data_tools.evaluation.alignment import MIN_ALIGNMENT_CAMERAS, align_camera_centres
 from mocapgraph.data_tools.evaluation.metrics import mcoe_rad, mcpe_m
 from mocapgraph.data_tools.geometry.association import MIN_VISIBILITY
 from mocapgraph.data_tools.geometry.camera_model import project_points, undistort_pixels
-from mocapgraph.data_tools.geometry.timing import match_times
-from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_points
+from mocapgraph.data_tools.geometry.triangulation import projection_matrix, triangulate_points, triangulate_ransac
 from mocapgraph.data_tools.io.calibration import CameraCalibration, intrinsics_only, read_calibration
 from mocapgraph.data_tools.io.capture import Capture, load_capture
-from mocapgraph.data_tools.io.result import Result
+from mocapgraph.data_tools.io.result import CameraTrack, Result
 from mocapgraph.data_tools.tracking.people import PersonChoice
 from mocapgraph.data_tools.tracking.track_files import TrackSet, load_track_set
 from mocapgraph.errors import MocapgraphError
@@ -203,37 +208,50 @@ def reprojection_px(result: Result, capture: Capture, body_points: bool = False)
     """Median distance (pixels) between each detection (confidence ≥ :data:`MIN_CONFIDENCE`,
     relabelled as the result's ``swaps`` say) and the result's 3D keypoint projected through its
     camera, with the capture's intrinsics (focal lengths as the result estimated them) and
-    distortion: ``{"all": px, "camera": {name: px}}``. Of a result with a body, and with
-    ``body_points`` of any result, only the points the body model has a counterpart for (the
-    others are stand-ins that no solve fitted): the same points for every pipeline."""
-    names = get_format(result.keypoint_format).names
-    has = np.ones(len(names), dtype=bool)
-    if result.has_body_parameters or body_points:
-        body = load_body_model(result.body_model) if result.has_body_parameters else load_body_model()
-        has = body.table(result.shape if result.has_body_parameters else body.default_shape, keypoints=result.keypoint_format).mapped
-    perms = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
-    focal = result.parameters.get("focal_px") or {}
+    distortion (:func:`~mocapgraph.benchmarks.heldout.view_errors`): ``{"all": px, "camera":
+    {name: px}}``. Of a result with a body, and with ``body_points`` of any result, only the
+    points the body model has a counterpart for (:func:`~mocapgraph.benchmarks.heldout.measured_points`)."""
+    views = view_errors(result, capture, capture_detections(result, capture), "result", body_points, MIN_CONFIDENCE)
     every, per_camera = [], {}
-    for name, track in result.cameras.items():
-        cam = capture.camera(name)
-        detections = next((d for d in cam.detectors.values() if d.format == result.keypoint_format), None)
-        if detections is None:
-            raise MocapgraphError(f"camera {name}: no detector of the result's keypoint format {result.keypoint_format}")
-        tolerance = 0.5 / cam.frame_rate
-        state, frame = match_times(result.timestamps, track.timestamps, tolerance), match_times(cam.timestamps, track.timestamps, tolerance)
-        ok = (state >= 0) & (frame >= 0)
-        K = cam.K.copy()
-        if name in focal:
-            K[:2, :2] *= focal[name] / cam.K[0, 0]
-        predicted, _ = project_points(result.keypoints[state[ok]], track.world_T_camera[ok], K, cam.distortion)
-        codes = np.zeros(len(track.timestamps), dtype=int) if track.swaps is None else track.swaps.astype(int)
-        observed = np.take_along_axis(detections.keypoints[frame[ok]], perms[codes[ok]][..., None], axis=1)
-        error = np.linalg.norm(predicted - observed[..., :2], axis=-1)
-        error = error[np.isfinite(error) & (np.nan_to_num(observed[..., 2]) >= MIN_CONFIDENCE) & has]
+    for name in result.cameras:
+        errors = views[name]["errors"]
+        error = errors[np.isfinite(errors)]
         per_camera[name] = round(float(np.median(error)), 2) if error.size else None
         every.append(error)
     every = np.concatenate(every) if every else np.zeros(0)
     return {"all": round(float(np.median(every)), 2) if every.size else None, "camera": per_camera}
+
+
+def lab_points(capture: Capture, labelled_by: Result, lab: dict[str, CameraCalibration]) -> Result:
+    """Free points of the capture's detections triangulated with the lab's cameras: per frame and
+    keypoint, RANSAC over the views (15 px) and Gauss-Newton
+    (:func:`~mocapgraph.data_tools.geometry.triangulation.triangulate_ransac`), each view relabelled
+    as ``labelled_by`` relabelled it. A result in the lab's world with the lab's poses as its
+    cameras: what free points predict when the cameras are the lab's (``bench real``'s held-out
+    reference; the cameras share one time line, the first camera's frames)."""
+    cams = [c for c in capture.cameras if c.name in labelled_by.cameras]
+    names = get_format(labelled_by.keypoint_format).names
+    detections = capture_detections(labelled_by, capture)
+    times = cams[0].timestamps
+    perms = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+    x, w, labelled = [], [], {}
+    for cam in cams:
+        frames, _, codes = projected(labelled_by, capture, cam.name)
+        labels = np.zeros(cam.num_frames, dtype=int)
+        labels[frames] = codes
+        labelled[cam.name] = labels.astype(np.int8)
+        observed = np.take_along_axis(detections[cam.name], perms[labels][..., None], axis=1)
+        seen = np.nan_to_num(observed[..., 2]) >= MIN_CONFIDENCE
+        x.append(np.where(seen[..., None], undistort_pixels(observed[..., :2], lab[cam.name].K, lab[cam.name].distortion), np.nan))
+        w.append(np.where(seen, observed[..., 2], 0.0))
+    P = np.stack([projection_matrix(lab[c.name].K, lab[c.name].world_T_camera) for c in cams])
+    T, K = len(times), len(names)
+    points, _, _ = triangulate_ransac(P, np.stack(x).reshape(len(cams), T * K, 2), np.stack(w).reshape(len(cams), T * K))
+    return Result(
+        pipeline="lab_points", capture=labelled_by.capture, world_frame="lab", timestamps=times, joints=np.full((T, 22, 3), np.nan),
+        keypoints=points.reshape(T, K, 3), keypoint_format=labelled_by.keypoint_format,
+        cameras={c.name: CameraTrack(c.timestamps, np.repeat(lab[c.name].world_T_camera[None], c.num_frames, axis=0), labelled[c.name]) for c in cams},
+    )  # fmt: skip
 
 
 def reported_reprojection(result: Result) -> dict | None:
@@ -285,8 +303,9 @@ def measure(result: Result, seconds: float, capture: Capture, lab: dict[str, Cam
     return row
 
 
-def goals(runs: dict, association: dict) -> dict:
-    """Per metric: what SmartMocap should reach, the numbers compared and whether it does."""
+def goals(runs: dict, association: dict, heldout: dict | None = None) -> dict:
+    """Per metric: what SmartMocap should reach, the numbers compared and whether it does (the
+    held-out reprojection's on the detections both pipelines predict, when measured)."""
     sm, bl = runs["smartmocap"]["calibrated"], runs["baseline"]["calibrated"]
     out = {}
     for key in COMPARED:
@@ -302,6 +321,10 @@ def goals(runs: dict, association: dict) -> dict:
         "limit": limit, "met": None if guessed is None or limit is None else bool(guessed <= limit),
     }  # fmt: skip
     out["same_person"] = {"goal": "the fitted person the same in every camera (guessed intrinsics)", "met": bool(association["guessed"]["same_person"])}
+    for split, held in (heldout or {}).items():
+        a, b = (held.get(p, {}).get("heldout_px") for p in PIPELINES)
+        out[f"heldout_px_{split}"] = {"goal": f"smartmocap <= baseline on hidden camera-frames ({split}; calibrated intrinsics, the detections both predict)",
+                                      "smartmocap": a, "baseline": b, "met": None if a is None or b is None else bool(a <= b)}  # fmt: skip
     return out
 
 
@@ -309,9 +332,21 @@ def goals(runs: dict, association: dict) -> dict:
 # The benchmark
 
 
-def bench_real(clip: str | Path | None = None) -> dict:
+def _result_of(results: dict[str, Result], pipeline: str) -> Result:
+    if pipeline not in results:
+        raise MocapgraphError(f"no {pipeline} result to take the labels from")
+    return results[pipeline]
+
+
+def bench_real(clip: str | Path | None = None, heldout_share: float = HELDOUT_SHARE, heldout_seed: int = HELDOUT_SEED) -> dict:
     """Both pipelines × both intrinsics on the default person and on every other person all the
-    clip's cameras see (module docstring); one run each."""
+    clip's cameras see (module docstring); one run each. With ``heldout_share`` > 0, both
+    pipelines twice more per person (lab intrinsics), each time with that share of the
+    camera-frames hidden (seed ``heldout_seed``; single frames, then one run per camera:
+    :data:`~mocapgraph.benchmarks.heldout.SPLITS`), and their reprojection on the hidden
+    detections (:func:`~mocapgraph.benchmarks.heldout.run_heldout`)."""
+    if not heldout_share >= 0:
+        raise MocapgraphError(f"held-out share must be >= 0 (0: no held-out runs), got {heldout_share}")
     directory = clip_directory(clip)
     tracks = load_clip(directory)
     lab = {c.name: c for c in lab_calibration(directory)}
@@ -345,7 +380,18 @@ def bench_real(clip: str | Path | None = None) -> dict:
                         row["runs"][pipeline][intrinsics] = {"error": str(exc)}
                         continue
                     row["runs"][pipeline][intrinsics] = measure(result, seconds, capture, lab)
-            row["goals"] = goals(row["runs"], row["association"])
+            if heldout_share > 0:
+                row["heldout"] = {}
+                runners = {p: (lambda capture, p=p: run_pipeline(p, capture)[0]) for p in PIPELINES}
+                # free points with the lab's cameras, labelled as the baseline labelled them
+                references = {"lab_points": lambda capture, results: lab_points(capture, _result_of(results, "baseline"), lab)}
+                for split in SPLITS:
+                    log.info("bench real: both pipelines on person %s with %g of the camera-frames hidden (%s)", person, heldout_share, split)
+                    run_frames = split_run_frames(split, out["frames"], heldout_share)
+                    held = run_heldout(tracks, intrinsics_only(list(lab.values())), Path(tmp) / f"{person}-{split}", runners, person, heldout_share, heldout_seed, run_frames, references)
+                    held["same_tracks_as_full_run"] = held["person"]["tracks"] == row["association"]["calibrated"]["tracks"]
+                    row["heldout"][split] = held
+            row["goals"] = goals(row["runs"], row["association"], row.get("heldout"))
             out["people"].append(row)
             k += 1
     out["goals_met"] = {key: goal["met"] for key, goal in out["people"][0]["goals"].items()}
@@ -456,6 +502,40 @@ def _person_lines(person: dict, columns: list[tuple[str, str]], width: int) -> l
     g = person["goals"]["guessed_camera_cm"]
     lines.append(f"  goal: {g['goal']}: {_cell(g['smartmocap'])} cm against {_cell(g['limit'])} cm: {_met(g)}")
     lines += [f"  {p} {i} failed: {person['runs'][p][i]['error']}" for p, i in columns if "error" in person["runs"][p][i]]
+    for split, held in person.get("heldout", {}).items():
+        lines += _heldout_lines(split, held, person["goals"].get(f"heldout_px_{split}"))
+    return lines
+
+
+_HELDOUT_ROWS = (
+    ("in_sample_px", "reprojection, kept views (px)"),
+    ("heldout_px", "reprojection, hidden views (px)"),
+    ("heldout_px_as_detected", "  the same, labels as detected"),
+    ("heldout_px_own", "  every point it predicts"),
+    ("unpredicted", "  detections not predicted"),
+    ("heldout_px_per_camera", "  per camera (px)"),
+)
+
+
+def _heldout_lines(split: str, heldout: dict, goal: dict | None) -> list[str]:
+    hidden = ", ".join(f"{c} {n}" for c, n in heldout["hidden_per_camera"].items())
+    runs = "single frames" if heldout["run_frames"] == 1 else f"runs of {heldout['run_frames']} frames"
+    lines = [
+        f"  held out ({split}): {100 * heldout['share']:g} % of the camera-frames hidden from both pipelines, {runs} "
+        f"(seed {heldout['seed']}: {hidden}), lab intrinsics;",
+        f"    {heldout.get('views', 0)} hidden views, {heldout.get('detections', 0)} detections of the body's points (confidence >= {heldout.get('min_confidence', 0):g}), "
+        f"{heldout.get('common', 0)} predicted by every pipeline that ran" + ("" if heldout.get("same_tracks_as_full_run", True) else "; NOT the full run's tracks"),
+        "  " + " " * 31 + "".join(f"{p:>12}" for p in PIPELINES),
+    ]
+    for key, title in _HELDOUT_ROWS:
+        note = f"   smartmocap <= baseline: {_met(goal)}" if key == "heldout_px" and goal is not None else ""
+        lines.append(f"  {title:31s}" + "".join(f"{_cell(heldout.get(p, {}).get(key, 'failed')):>12}" for p in PIPELINES) + note)
+    for name, ref in heldout.get("references", {}).items():
+        lines.append(f"  reference {name} (free points, the lab's cameras; not compared): kept views {_cell(ref['in_sample_px'])} px, hidden {_cell(ref['heldout_px_own'])} px, {ref['unpredicted']} not predicted")
+    if "difference_px" in heldout:
+        d = heldout["difference_px"]
+        lines.append(f"  {d['of']}: {d['median']:+.2f} px (95 % over resampled hidden views: {d['interval_95'][0]:+.2f} to {d['interval_95'][1]:+.2f})")
+    lines += [f"  {p} failed on the kept views: {message}" for p, message in heldout["errors"].items()]
     return lines
 
 

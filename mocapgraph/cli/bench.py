@@ -87,7 +87,7 @@ def cmd_bench_body(args) -> None:
 def cmd_bench_real(args) -> None:
     from mocapgraph.benchmarks.real import bench_real, format_report
 
-    report = bench_real(args.clip)
+    report = bench_real(args.clip, args.heldout_share, args.heldout_seed)
     print(json.dumps(report) if args.json else format_report(report))
 
 
@@ -102,6 +102,13 @@ def add_parsers(subparsers) -> None:
     body.set_defaults(func=cmd_bench_body)
     real = command(bench, "real", "SmartMocap and the uncalibrated baseline self-calibrating a real four-camera clip, against the lab's calibration; one run")
     real.add_argument("--clip", type=Path, default=None, metavar="DIR", help="folder with tracks.npz and Calib.qca.txt (default: tests/data/real of the source tree)")
+    from mocapgraph.benchmarks.heldout import HELDOUT_SEED, HELDOUT_SHARE
+
+    real.add_argument(
+        "--heldout-share", type=float, default=HELDOUT_SHARE, metavar="S",
+        help=f"share of the camera-frames hidden from both pipelines in one more run each, predicted from their 3D (default {HELDOUT_SHARE:g}; 0: no such run)",
+    )  # fmt: skip
+    real.add_argument("--heldout-seed", type=int, default=HELDOUT_SEED, metavar="N", help=f"which camera-frames are hidden (default {HELDOUT_SEED})")
     real.add_argument("--json", action="store_true", help="print one JSON object")
     real.set_defaults(func=cmd_bench_real)
     for name, (help, target, extra) in BENCHES.items():

@@ -344,7 +344,7 @@ def choose_person(
         candidates = [k for k, p in enumerate(people) if len(p.tracks) == most]
         key = (lambda k: -people[k].height) if person == "largest" else (lambda k: people[k].offset)
         chosen, rule = min(candidates, key=key), person
-    keypoints = {cam: _merge(t.keypoints[list(people[chosen].tracks.get(cam, ()))], t.keypoints.shape[1:]) for cam, t in tracks.items()}
+    keypoints = {cam: merge_tracks(t.keypoints[list(people[chosen].tracks.get(cam, ()))], t.keypoints.shape[1:]) for cam, t in tracks.items()}
     return PersonChoice(people, chosen, rule, keypoints, association)
 
 
@@ -368,7 +368,7 @@ def select_person(
     return choose_person(assoc, tracks, image_sizes, person)
 
 
-def _merge(rows: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+def merge_tracks(rows: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """One ``(T, K, 3)`` array from a person's tracks in a camera. They share a frame only where a
     detector split the person in two (at most ``MAX_SHARED_FRAMES``, the association's bound);
     there the piece with more points is kept."""
