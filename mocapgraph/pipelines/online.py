@@ -239,8 +239,10 @@ class OnlineOptions:
     # seed 2, spine3 bent 22-27 deg forward and the pelvis leaning 5-10 deg back from 1 s on (the
     # direction the hip keypoints barely see), as the offline fit without its motion prior does
     # (spine3 24 deg, pelvis 5-7 deg back); smoothed RA-MPJPE 44.0 -> 31.1 mm, MPJPE 19.4 -> 18.0 mm
-    # (offline 26.9, 15.2 mm), seeds 0 and 1 within 1.1x offline either way (docs/online.md,
-    # "The root's pitch on seed 2: spine3")
+    # (offline 26.9, 15.2 mm); seeds 0 and 1 within 1.13x offline on every measure (RA-MPJPE 0.77 /
+    # 0.79x -> 1.06 / 0.98x: their pelvis now leans forward as offline's does). On aircap (10 s,
+    # seed 0) 0.05 rad took smoothed MPJPE 0.393 -> 0.412 m, so not there (docs/online.md, "The
+    # root's pitch on seed 2: spine3")
     spine3_sigma_rad: float | None | str = "rig"
     # A UAV camera's whole-body relabelling (its detector's front/back flip): "minority", taken
     # unless more of an update's cameras take it than keep their body as detected; in a tie (one
