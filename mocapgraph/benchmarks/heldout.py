@@ -33,7 +33,7 @@ import numpy as np
 
 from mocapgraph.body import load_body_model
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
+from mocapgraph.body.labelling import swap_permutations
 from mocapgraph.data_tools.geometry.camera_model import project_points
 from mocapgraph.data_tools.geometry.timing import match_times
 from mocapgraph.data_tools.io.calibration import CameraCalibration
@@ -211,7 +211,7 @@ def view_errors(
         raise MocapgraphError(f"labels must be 'result', 'best' or 'detected', got {labels!r}")
     names = get_format(result.keypoint_format).names
     counted = measured_points(result, body_points)
-    perms = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+    perms = swap_permutations(names)
     out = {}
     for name in result.cameras:
         if name not in detections:

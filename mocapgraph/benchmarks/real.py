@@ -49,7 +49,7 @@ import numpy as np
 import mocapgraph
 from mocapgraph.benchmarks.heldout import HELDOUT_SEED, HELDOUT_SHARE, SPLITS, capture_detections, projected, run_heldout, split_run_frames, view_errors
 from mocapgraph.body.keypoint_formats import get_format
-from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
+from mocapgraph.body.labelling import swap_permutation, swap_permutations
 from mocapgraph.data_tools.evaluation.alignment import MIN_ALIGNMENT_CAMERAS, align_camera_centres
 from mocapgraph.data_tools.evaluation.metrics import mcoe_rad, mcpe_m
 from mocapgraph.data_tools.geometry.association import MIN_VISIBILITY
@@ -233,7 +233,7 @@ def lab_points(capture: Capture, labelled_by: Result, lab: dict[str, CameraCalib
     names = get_format(labelled_by.keypoint_format).names
     detections = capture_detections(labelled_by, capture)
     times = cams[0].timestamps
-    perms = np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+    perms = swap_permutations(names)
     x, w, labelled = [], [], {}
     for cam in cams:
         frames, _, codes = projected(labelled_by, capture, cam.name)

@@ -62,6 +62,12 @@ def swap_permutation(names: Sequence[str], kind: str) -> np.ndarray:
     return perm
 
 
+def swap_permutations(names: Sequence[str]) -> np.ndarray:
+    """``(H, K)`` every labelling hypothesis of a format with point ``names``: row ``h`` is
+    :func:`swap_permutation` of ``SWAP_KINDS[h]``, so a view's label code indexes it."""
+    return np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+
+
 def then(names: Sequence[str], first: int, second: int) -> int:
     """The code of relabelling by swap ``first`` and then by ``second`` (codes of
     :data:`SWAP_KINDS`), or ``second`` when the two together are no single kind (e.g. the whole

@@ -23,7 +23,7 @@ import numpy as np
 
 from mocapgraph.body.keypoint_formats import get_format
 from mocapgraph.body.keypoint_offsets import offset_basis, offset_parameters
-from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutations
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.skeleton import NUM_JOINTS
 from mocapgraph.errors import MocapgraphError, is_positive_number
@@ -216,7 +216,7 @@ def motion_windows(n: int, stride: int = WINDOW) -> list[int]:
 def swap_hypotheses(body: BodyModel, fmt: str) -> np.ndarray:
     """``(H, K)`` the labelling hypotheses of format ``fmt`` (:data:`~mocapgraph.body.labelling.SWAP_KINDS` order)."""
     names = body.keypoint_names if fmt == "body" else get_format(fmt).names
-    return np.stack([swap_permutation(names, kind) for kind in SWAP_KINDS])
+    return swap_permutations(names)
 
 
 class BodyGraph:

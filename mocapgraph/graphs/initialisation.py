@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from mocapgraph.body.keypoint_formats import COCO17, get_format
-from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutations
 from mocapgraph.body.model import BodyModel
 from mocapgraph.body.rotations import nearest_rotation, relative_angle
 from mocapgraph.body.skeleton import BODY_KEYPOINT_NAMES, JOINT_NAMES, NUM_JOINTS
@@ -252,7 +252,7 @@ def moving_cameras_from_static(
         obs = np.stack([keypoints[c][t] for c in static])
         conf = np.where(np.nan_to_num(obs[..., 2]) >= MIN_CONFIDENCE, obs[..., 2], 0.0)
         points[t] = triangulate_points(P, obs[..., :2], conf)
-    perms = [swap_permutation(COCO17, kind) for kind in SWAP_KINDS]
+    perms = swap_permutations(COCO17)
     pose_facing = list(zip(*body_facing(points)))
     for c in range(len(Ks)):
         if not moving[c] or keypoints[c] is None:

@@ -43,7 +43,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation
+from mocapgraph.body.labelling import SWAP_KINDS, swap_permutation, swap_permutations
 from mocapgraph.errors import MocapgraphError, as_checked_array
 
 MIN_CORRESPONDENCES = 15
@@ -370,7 +370,7 @@ def pair_tables(x, w, Ks, pairs: dict[tuple[int, int], PairGeometry], names: Seq
     C, N, K = w.shape
     if len(names) != K:
         raise MocapgraphError(f"names: {len(names)} point names for {K} keypoints")
-    perms = [swap_permutation(names, kind) for kind in SWAP_KINDS]
+    perms = swap_permutations(names)
     S = len(perms)
     tables = {}
     for (a, b), geometry in pairs.items():
@@ -416,7 +416,7 @@ def track_tables(x, w, names: Sequence[str], *, cap_px: float, max_gap: int = MA
     w = np.where(np.isfinite(x).all(-1), as_checked_array(w, "w (C, N, K)", (C, N, K)), 0.0)
     if len(names) != K:
         raise MocapgraphError(f"names: {len(names)} point names for {K} keypoints")
-    perms = [swap_permutation(names, kind) for kind in SWAP_KINDS]
+    perms = swap_permutations(names)
     S = len(perms)
     if N < 2:
         return np.zeros((C, N, S, S))
