@@ -306,7 +306,7 @@ def estimate_time_offset(
     if len(keep) < 3:
         return float("nan"), grid, np.full(len(grid), np.nan)
     views = tuple(v[keep] for v in views[:3]) + (views[3],)
-    return grid_minimum(lambda o: track_cost(imu, o, times[keep], start[keep], views, noise, **costs), max_offset_s, step_s)
+    return grid_minimum(lambda o: track_cost(imu, o, times[keep], start[keep], views, noise, **costs), grid)
 
 
 def offset_grid(max_offset_s: float, step_s: float) -> np.ndarray:
@@ -322,10 +322,11 @@ def frames_inside(imu: CameraImu, times: np.ndarray, grid: np.ndarray) -> np.nda
     return np.arange(inside[0], inside[-1] + 1) if inside else np.zeros(0, dtype=int)
 
 
-def grid_minimum(cost, max_offset_s: float, step_s: float) -> tuple[float, np.ndarray, np.ndarray]:
-    """The offset minimising ``cost(offset_s) -> float`` over :func:`offset_grid`, refined by a
-    parabola through the best and its neighbours; with the grid ``(G,)`` and its costs ``(G,)``."""
-    grid = offset_grid(max_offset_s, step_s)
+def grid_minimum(cost, grid: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The offset minimising ``cost(offset_s) -> float`` over the evenly spaced ``grid (G,)``
+    (:func:`offset_grid`), refined by a parabola through the best and its neighbours; with the
+    grid and its costs ``(G,)``."""
+    step_s = float(grid[1] - grid[0]) if len(grid) > 1 else 0.0
     scores = np.array([cost(float(o)) for o in grid])
     k = int(np.argmin(scores))
     best = float(grid[k])

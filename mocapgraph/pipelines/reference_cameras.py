@@ -237,5 +237,5 @@ def reference_clock_offsets(
         if len(keep) < 3:
             continue
         poses = reference.cameras[name][frames[keep]]
-        out[c] = grid_minimum(lambda o: reference_rotation_cost(imu, o, times[keep], poses, sigma_rad, noise), max_offset_s, CLOCK_STEP_S)[0]
+        out[c] = grid_minimum(lambda o: reference_rotation_cost(imu, o, times[keep], poses, sigma_rad, noise), grid)[0]
     return out
