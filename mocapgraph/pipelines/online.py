@@ -1163,14 +1163,20 @@ class OnlineFusion:
         # 12-32 deg apart, the body slid 2.7 m along their rays at 6.1-7.1 s while uav1, the only
         # view across, was gated out 53 times, its runs reset by the others' detections). The
         # state then starts where all its views triangulate the body, as after a lost track.
-        view_of = (cam.K @ np.linalg.inv(view.pose)[:3], pixels, weights, fmt)
+        ungated = weights
+
+        def view_of() -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+            """The view as _reacquire triangulates it (its weights before the gate); built only for
+            a state still to be created, not on every observation's path."""
+            return cam.K @ np.linalg.inv(view.pose)[:3], pixels, ungated, fmt
+
         if self._camera_rejected.get(c, 0) >= self.options.gate_reacquire and k > self.newest and k not in self._reacquiring:
             self._reacquiring[k] = list(self._new_views.get(k, []))
             self.stats.camera_reacquired += 1
         if (lost or stale or k in self._reacquiring) and k > self.newest:
             # the track was lost: the prediction is stale, so no gate, and the new state will
             # start where the views triangulate the body (_reacquire)
-            self._reacquiring.setdefault(k, []).append(view_of)
+            self._reacquiring.setdefault(k, []).append(view_of())
         elif i not in self._seed and self._rejected < self.options.gate_reacquire:
             gated = self._gate(c, view.pose, frame, pixels, weights, i, a)
             if gated is None:
@@ -1180,7 +1186,7 @@ class OnlineFusion:
                 return
             weights = gated
             if k > self.newest:
-                self._new_views.setdefault(k, []).append(view_of)
+                self._new_views.setdefault(k, []).append(view_of())
         self._rejected = 0
         self._camera_rejected[c] = 0
         o = self.options.graph
